@@ -1,0 +1,139 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The Bounding Box Equation: an object's translation from its rotation and its 2D box.
+
+Each side of the 2D box touches the projection of one model point. For the left side at
+pixel column u_L, with a = (u_L - cx) / fx and P = R X the rotated touching point,
+(P + t)_x / (P + t)_z = a, which is linear in t:
+
+    [1, 0, -a] . t = a P_z - P_x,
+
+and likewise for the right side and, with fy, cy and the y row, for the top and bottom. The
+four equations form the paper's 4x3 system A t = b (the paper writes it for the camera
+position T = -R^T t; the rows and residuals are the same), solved by least squares.
+
+Step 1 chooses the touching points as the paper's direct conversion does (weak perspective
+about the box centre: the extremes of the rotated points' x and y). Step 2 solves. Then the
+touching points are chosen again under full perspective with the solved t and the system is
+solved again, until the choice stops changing or ``max_iterations`` is reached.
+
+Everything is batched: N objects, each with M model points (pad smaller sets by repeating a
+point, which never changes an extreme; see ``pad_point_sets``).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Order of the four sides in boxes, touching-point indices and side weights.
+SIDES = ('left', 'top', 'right', 'bottom')
+
+
+@dataclass(frozen=True)
+class TranslationSolution:
+    """
+    What ``solve_translations`` found for N objects.
+
+    Attributes:
+        translations: (N, 3) t in metres, camera frame (x_cam = R x_model + t).
+        touching: (N, 4) indices of the model points touching the left, top, right and
+            bottom sides.
+        iterations: (N,) full-perspective re-selections each object needed (0: the direct
+            conversion's choice was already right).
+        converged: (N,) False where ``max_iterations`` ended the re-selection.
+
+    """
+
+    translations: np.ndarray
+    touching: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+
+
+def pad_point_sets(point_sets):
+    """Stack point sets of different sizes, (M_i, 3) each, into (N, max M_i, 3)."""
+    size = max(len(points) for points in point_sets)
+    return np.stack([np.concatenate([p, np.repeat(p[-1:], size - len(p), axis=0)])
+                     for p in point_sets])
+
+
+def _extreme_indices(u, v):
+    """(N, 4) indices of min u, min v, max u, max v over (N, M) coordinates."""
+    return np.stack([u.argmin(axis=1), v.argmin(axis=1), u.argmax(axis=1), v.argmax(axis=1)],
+                    axis=1)
+
+
+def _solve(rotated, touching, boxes_norm, side_weights):
+    """Weighted least squares of the 4x3 systems for (N, M, 3) rotated points."""
+    n = len(rotated)
+    points = rotated[np.arange(n)[:, None], touching]            # (N, 4, 3) in side order
+    coord = np.array([0, 1, 0, 1])                                 # x for left/right, y else
+    a = np.zeros((n, 4, 3))
+    a[:, np.arange(4), coord] = 1.0
+    a[:, :, 2] = -boxes_norm
+    b = boxes_norm * points[:, :, 2] - points[:, np.arange(4), coord]
+    aw = a * side_weights[:, :, None]
+    return np.linalg.solve(np.swapaxes(aw, 1, 2) @ a,
+                           (np.swapaxes(aw, 1, 2) @ b[:, :, None]))[:, :, 0]
+
+
+def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights=None,
+                       max_iterations=10):
+    """
+    Solve the Bounding Box Equation for N objects at once.
+
+    Args:
+        rotations: (N, 3, 3) model-to-camera rotations.
+        boxes_uv: (N, 4) boxes [u_min, v_min, u_max, v_max] in continuous pixel coordinates
+            (pixel centres at integers, see ``CameraIntrinsics``): the outer edges of the
+            object's projection.
+        points: (N, M, 3) model points in metres (convex-hull points suffice).
+        fx, fy, cx, cy: pinhole intrinsics in pixels.
+        side_weights: optional (N, 4) weights of the left, top, right and bottom equations,
+            e.g. 0 for a side that an image border cut; default all 1. At least one side per
+            axis must keep a weight > 0.
+        max_iterations: bound on the full-perspective re-selections.
+
+    Returns:
+        A TranslationSolution.
+
+    """
+    rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+    boxes_uv = np.asarray(boxes_uv, dtype=float).reshape(-1, 4)
+    points = np.asarray(points, dtype=float)
+    n = len(rotations)
+    weights = np.ones((n, 4)) if side_weights is None else np.asarray(side_weights, float)
+    boxes_norm = (boxes_uv - [cx, cy, cx, cy]) / [fx, fy, fx, fy]
+    rotated = np.einsum('nij,nmj->nmi', rotations, points)
+    touching = _extreme_indices(rotated[:, :, 0], rotated[:, :, 1])
+    translations = _solve(rotated, touching, boxes_norm, weights)
+    iterations = np.zeros(n, dtype=int)
+    active = np.ones(n, dtype=bool)
+    for _ in range(max_iterations):
+        cam = rotated[active] + translations[active, None, :]
+        in_front = np.all(cam[:, :, 2] > 0.0, axis=1)
+        z = np.where(cam[:, :, 2] > 0.0, cam[:, :, 2], 1.0)
+        chosen = _extreme_indices(cam[:, :, 0] / z, cam[:, :, 1] / z)
+        changed = in_front & np.any(chosen != touching[active], axis=1)
+        idx = np.flatnonzero(active)
+        active[idx[~changed]] = False
+        if not changed.any():
+            break
+        idx = idx[changed]
+        touching[idx] = chosen[changed]
+        translations[idx] = _solve(rotated[idx], touching[idx], boxes_norm[idx], weights[idx])
+        iterations[idx] += 1
+    return TranslationSolution(translations, touching, iterations, ~active)

@@ -1,0 +1,89 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Pinhole camera intrinsics and projection (no distortion model beyond refusing it)."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """
+    A pinhole camera in OpenCV's continuous pixel convention.
+
+    A point (x, y, z) in the camera optical frame (x right, y down, z forward) projects to
+    u = fx * x / z + cx, v = fy * y / z + cy. The centre of pixel (col, row) sits at
+    (u, v) = (col, row), so the image spans u in [-0.5, width - 0.5].
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        values = np.array([self.fx, self.fy, self.cx, self.cy], dtype=float)
+        if not np.all(np.isfinite(values)) or self.fx <= 0.0 or self.fy <= 0.0:
+            raise InputError(
+                f'invalid camera intrinsics: fx={self.fx}, fy={self.fy}, cx={self.cx}, '
+                f'cy={self.cy} (focal lengths must be finite and positive)')
+        if self.width <= 0 or self.height <= 0:
+            raise InputError(f'invalid image size {self.width}x{self.height}')
+
+    @classmethod
+    def from_k(cls, k, width, height):
+        """Build from a 3x3 (or row-major 9-element) camera matrix K."""
+        k = np.asarray(k, dtype=float).reshape(3, 3)
+        return cls(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
+                   int(width), int(height))
+
+    @classmethod
+    def from_p(cls, p, width, height):
+        """Build from a 3x4 (or row-major 12-element) projection matrix P (rectified images)."""
+        p = np.asarray(p, dtype=float).reshape(3, 4)
+        return cls.from_k(p[:, :3], width, height)
+
+    @property
+    def k(self):
+        """The 3x3 camera matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def scaled(self, width, height):
+        """
+        Intrinsics of the same camera whose image was resized to width x height.
+
+        Pixel edges scale, pixel centres do not: c' = (c + 0.5) * s - 0.5.
+        """
+        sx, sy = width / self.width, height / self.height
+        return CameraIntrinsics(self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5,
+                                (self.cy + 0.5) * sy - 0.5, int(width), int(height))
+
+    def project(self, points_cam):
+        """Project (..., 3) points in the camera frame (metres) to (..., 2) pixels (u, v)."""
+        points_cam = np.asarray(points_cam, dtype=float)
+        z = points_cam[..., 2]
+        return np.stack([self.fx * points_cam[..., 0] / z + self.cx,
+                         self.fy * points_cam[..., 1] / z + self.cy], axis=-1)
+
+    def normalized(self, uv):
+        """Map (..., 2) pixels (u, v) to normalised image coordinates ((u-cx)/fx, (v-cy)/fy)."""
+        uv = np.asarray(uv, dtype=float)
+        return np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy],
+                        axis=-1)
