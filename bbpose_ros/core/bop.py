@@ -33,13 +33,16 @@ from bbpose_ros.core.models import LINEMOD_OBJECTS, load_bop_models, MM_TO_M
 
 def bop_box_to_uv(bbox_xywh):
     """
-    Convert a BOP box (x, y, w, h) to continuous [u_min, v_min, u_max, v_max] = [x, y, x+w+1, y+h+1].
+    Convert a BOP box (x, y, w, h) to a continuous box [x, y, x + w + 1, y + h + 1].
 
     BOP's box covers pixel columns x .. x + w inclusive, from a renderer whose pixel (i, j)
     spans [i, i + 1] x [j, j + 1] in K's coordinates. The projected model's extremes are
-    therefore at u = x and u = x + w + 1 (on LM-O: within 0.5 px, 0.0 px on average).
+    therefore at u = x and u = x + w + 1 (on LM-O: within 0.6 px, 0.0 px on average).
+    BOP writes (-1, -1, -1, -1) when it has no box; that becomes four NaNs.
     """
     x, y, w, h = (float(value) for value in bbox_xywh)
+    if w < 0 or h < 0:
+        return np.full(4, np.nan)
     return np.array([x, y, x + w + 1.0, y + h + 1.0])
 
 

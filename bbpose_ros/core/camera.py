@@ -62,7 +62,7 @@ class CameraIntrinsics:
 
     @property
     def k(self):
-        """The 3x3 camera matrix K."""
+        """Return the 3x3 camera matrix K."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     def scaled(self, width, height):

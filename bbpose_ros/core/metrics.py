@@ -39,7 +39,7 @@ def add(rotation_e, t_e, rotation_g, t_g, pts):
 
 
 def adi(rotation_e, t_e, rotation_g, t_g, pts):
-    """ADD-S: mean distance from each ground-truth point to the closest estimated one, metres."""
+    """Compute ADD-S: mean distance of each true point to the closest estimated one, metres."""
     est = transform_points(pts, rotation_e, t_e)
     gt = transform_points(pts, rotation_g, t_g)
     distances, _ = cKDTree(est).query(gt, k=1)
@@ -62,7 +62,7 @@ def re(rotation_e, rotation_g):
 
 
 def te(t_e, t_g):
-    """Translation error, metres."""
+    """Compute the translation error, metres."""
     return float(np.linalg.norm(np.asarray(t_e) - np.asarray(t_g)))
 
 

@@ -70,7 +70,7 @@ class ObjectModel:
 
     @property
     def is_symmetric(self):
-        """True when the object has symmetry transforms (ADD-S is its metric)."""
+        """Tell whether the object has symmetry transforms (then ADD-S is its metric)."""
         return len(self.symmetries) > 0
 
     @property

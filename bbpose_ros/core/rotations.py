@@ -73,7 +73,7 @@ def rotation_error_deg(rotation_est, rotation_gt):
 
 def euler_error_deg(rotation_est, rotation_gt):
     """
-    The paper's Euler angle error: mean absolute difference of the three angles, in degrees.
+    Compute the paper's Euler error: mean absolute difference of the three angles, degrees.
 
     Angles are static-axis x-y-z Euler angles; each difference is wrapped to [-180, 180)
     before its absolute value is taken. Inputs (N, 3, 3), output (N,).

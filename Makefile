@@ -1,0 +1,48 @@
+# bbpose_ros: `make demo` runs the main job, `make test` the whole test suite.
+# Both create or update .venv with the pinned dependencies first.
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.bbpose-installed
+DATASET ?= ../shared/datasets/lmo
+OUT ?= out
+
+# ROS traffic of tests and demos stays on this host, in a domain of its own.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export AMENT_PREFIX_PATH := $(abspath $(VENV))
+export BBPOSE_DATASET := $(DATASET)
+
+.PHONY: setup system-deps test demo lint clean
+
+setup: $(STAMP) system-deps
+
+$(STAMP): requirements.txt setup.py package.xml
+	@echo "[setup] creating/updating $(VENV) with pinned dependencies (CPU torch)"
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps \
+		--no-build-isolation -e .
+	@touch $@
+
+# The synthetic-data renderer needs EGL and GL from Debian (Mesa llvmpipe, no GPU needed).
+system-deps:
+	@if ! /sbin/ldconfig -p | grep -q 'libEGL.so.1 ' || ! /sbin/ldconfig -p | grep -q 'libGL.so.1 '; then \
+		echo "[setup] installing libegl1 libgl1 (headless OpenGL for the renderer)"; \
+		SUDO=$$( [ $$(id -u) = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends libegl1 libgl1 \
+		|| echo "[setup] warning: could not install libegl1 libgl1; rendering tests will be skipped"; \
+	fi
+
+test: setup
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/python -m pytest test
+
+demo: setup
+	$(BIN)/bbpose eval --dataset $(DATASET) --boxes gt --rotation gt --json $(OUT)/eval_gt.json
+
+lint: setup
+	$(BIN)/python -m pytest test -m linter
+
+clean:
+	rm -rf build install log $(OUT) .pytest_cache

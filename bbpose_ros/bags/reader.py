@@ -1,0 +1,85 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Read bags written by ``bbpose make-bag`` (or any bag with the same topics) frame by frame."""
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rosbags.rosbag2 import Reader
+
+from bbpose_ros.bags import topics
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.image_encoding import decode_image, intrinsics_from_camera_info
+
+
+@dataclass
+class BagFrame:
+    """
+    One image of a bag with what shares its stamp.
+
+    Attributes:
+        stamp_ns: header stamp of the image, nanoseconds.
+        frame_id: header frame_id of the image.
+        image_rgb: (H, W, 3) uint8.
+        camera: CameraIntrinsics from the CameraInfo with the same stamp (None if absent).
+        ground_truth: {object name: [(rotation (3, 3), translation (3,) metres), ...]}.
+
+    """
+
+    stamp_ns: int
+    frame_id: str
+    image_rgb: object
+    camera: object = None
+    ground_truth: dict = field(default_factory=dict)
+
+
+def read_bag_frames(path, image_topic=topics.IMAGE_TOPIC,
+                    camera_info_topic=topics.CAMERA_INFO_TOPIC):
+    """Read every image of a bag, paired by header stamp with CameraInfo and ground truth."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f'bag not found: {path}')
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as err:  # rosbags raises its own error types for broken bags
+        raise InputError(f'cannot open bag {path}: {err}') from err
+    images, infos, poses = {}, {}, defaultdict(lambda: defaultdict(list))
+    try:
+        for connection, _, raw in reader.messages():
+            if connection.topic not in (image_topic, camera_info_topic) and \
+                    topics.object_of_ground_truth_topic(connection.topic) is None:
+                continue
+            message = topics.TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+            stamp = topics.stamp_to_ns(message.header.stamp)
+            if connection.topic == image_topic:
+                images[stamp] = message
+            elif connection.topic == camera_info_topic:
+                infos[stamp] = message
+            else:
+                name = topics.object_of_ground_truth_topic(connection.topic)
+                poses[stamp][name].append(topics.pose_from_message(message))
+    finally:
+        reader.close()
+    return [_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}))
+            for stamp in sorted(images)]
+
+
+def _frame(stamp, image, info, poses):
+    rgb = decode_image(image.height, image.width, image.encoding, image.step, image.data)
+    camera = None if info is None else intrinsics_from_camera_info(
+        info.k, info.p, info.width, info.height)
+    return BagFrame(stamp, image.header.frame_id, rgb, camera, dict(poses))

@@ -1,0 +1,75 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Topic names, frame ids and message helpers shared by the bag writer and reader."""
+
+import numpy as np
+from rosbags.typesys import get_typestore, Stores
+
+from bbpose_ros.core.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix, wxyz_to_xyzw
+from bbpose_ros.core.rotations import xyzw_to_wxyz
+
+IMAGE_TOPIC = '/camera/image_raw'
+CAMERA_INFO_TOPIC = '/camera/camera_info'
+DEFAULT_FRAME_ID = 'camera_color_optical_frame'
+GROUND_TRUTH_PREFIX = '/ground_truth/'
+
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def ground_truth_topic(object_name):
+    """Topic of an object's ground-truth poses, e.g. /ground_truth/ape/pose."""
+    return f'{GROUND_TRUTH_PREFIX}{object_name}/pose'
+
+
+def object_of_ground_truth_topic(topic):
+    """Object name of a ground-truth topic, or None for other topics."""
+    if topic.startswith(GROUND_TRUTH_PREFIX) and topic.endswith('/pose'):
+        return topic[len(GROUND_TRUTH_PREFIX):-len('/pose')]
+    return None
+
+
+def header(stamp_ns, frame_id):
+    """Build a std_msgs/Header for a stamp in nanoseconds."""
+    types = TYPESTORE.types
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    stamp = types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
+    return types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
+
+
+def stamp_to_ns(stamp):
+    """Nanoseconds of a builtin_interfaces/Time."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def pose_message(stamp_ns, frame_id, rotation, translation_m):
+    """geometry_msgs/PoseStamped for x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
+    types = TYPESTORE.types
+    x, y, z, w = wxyz_to_xyzw(matrix_to_quat_wxyz(rotation))
+    pose = types['geometry_msgs/msg/Pose'](
+        position=types['geometry_msgs/msg/Point'](*(float(v) for v in translation_m)),
+        orientation=types['geometry_msgs/msg/Quaternion'](x=x, y=y, z=z, w=w))
+    return types[POSE_TYPE](header=header(stamp_ns, frame_id), pose=pose)
+
+
+def pose_from_message(message):
+    """(rotation (3, 3), translation (3,) metres) of a PoseStamped."""
+    q = message.pose.orientation
+    p = message.pose.position
+    return (quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])),
+            np.array([p.x, p.y, p.z], dtype=float))

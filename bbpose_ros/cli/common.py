@@ -1,0 +1,64 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Argument helpers and output writing shared by the subcommands."""
+
+import json
+import math
+import os
+from pathlib import Path
+
+DEFAULT_DATASET = Path('../shared/datasets/lmo')
+
+
+def add_dataset_argument(parser):
+    """Add ``--dataset DIR`` (a BOP folder; default ../shared/datasets/lmo)."""
+    parser.add_argument('--dataset', type=Path,
+                        default=Path(os.environ.get('BBPOSE_DATASET', DEFAULT_DATASET)),
+                        help='BOP dataset folder (default: $BBPOSE_DATASET or %(default)s)')
+
+
+def add_objects_argument(parser):
+    """Add ``--objects a,b,c`` (default: every object of the dataset)."""
+    parser.add_argument('--objects', type=lambda text: [n for n in text.split(',') if n],
+                        default=None, help='comma-separated object names (default: all)')
+
+
+def add_frames_argument(parser):
+    """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
+    parser.add_argument('--max-frames', type=int, default=None,
+                        help='use only the first N frames (default: all)')
+
+
+def json_safe(value):
+    """Replace NaN and infinities by None, recursively, so the JSON is standard."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_json_atomic(path, data):
+    """Write JSON to ``path`` through a temporary file, so no half file is ever left."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f'.{path.name}.partial-{os.getpid()}')
+    try:
+        tmp.write_text(json.dumps(json_safe(data), indent=2) + '\n')
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -1,0 +1,257 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Offline evaluation of the pipeline on BOP frames, with the report's JSON layout.
+
+An instance counts when its visible fraction is at least ``min_visib`` (0.1, as BOP does);
+an instance the pipeline misses counts as a failure in every recall. Medians and means of
+errors are taken over the instances that were found.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from tqdm import tqdm
+
+from bbpose_ros.core import metrics
+from bbpose_ros.core.pipeline import Detection
+from bbpose_ros.core.rotations import euler_error_deg
+
+ADD_THRESHOLD = 0.1           # fraction of the diameter
+PROJ_THRESHOLD_PX = 5.0
+RE_THRESHOLD_DEG = 5.0
+TE_THRESHOLD_M = 0.05
+MATCH_IOU = 0.1               # a pose is scored against the instance its box overlaps
+DETECTION_IOU = 0.5
+
+POSE_KEYS = ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px', 're_median_deg',
+             'te_median_mm', 'euler_mean_deg', 'te5cm_uncut')
+
+
+@dataclass(frozen=True)
+class InstanceScore:
+    """Errors of one counted ground-truth instance (NaN errors where it was missed)."""
+
+    object_name: str
+    detected: bool
+    box_inside_image: bool
+    add_error: float
+    add_threshold: float
+    re_deg: float
+    te_m: float
+    proj_px: float
+    euler_deg: float
+
+
+def box_iou(boxes_a, boxes_b):
+    """Intersection over union of (N, 4) and (M, 4) boxes [u_min, v_min, u_max, v_max]."""
+    a = np.asarray(boxes_a, dtype=float).reshape(-1, 1, 4)
+    b = np.asarray(boxes_b, dtype=float).reshape(1, -1, 4)
+    inter = np.prod(np.clip(np.minimum(a[..., 2:], b[..., 2:])
+                            - np.maximum(a[..., :2], b[..., :2]), 0.0, None), axis=-1)
+    area_a = np.prod(a[..., 2:] - a[..., :2], axis=-1)
+    area_b = np.prod(b[..., 2:] - b[..., :2], axis=-1)
+    return inter / np.maximum(area_a + area_b - inter, 1e-12)
+
+
+def match_by_score(boxes_det, scores, boxes_gt, min_iou):
+    """
+    Greedy matching, highest score first, each detection to the free ground truth of most IoU.
+
+    Returns an (N_det,) array of ground-truth indices, -1 where a detection found none with
+    IoU >= ``min_iou``.
+    """
+    matches = np.full(len(boxes_det), -1)
+    if len(boxes_det) == 0 or len(boxes_gt) == 0:
+        return matches
+    iou = box_iou(boxes_det, boxes_gt)
+    free = np.ones(len(boxes_gt), dtype=bool)
+    for det in np.argsort(-np.asarray(scores), kind='stable'):
+        candidates = np.where(free, iou[det], -1.0)
+        best = int(np.argmax(candidates))
+        if candidates[best] >= min_iou:
+            matches[det] = best
+            free[best] = False
+    return matches
+
+
+def score_instance(model, instance, pose, camera):
+    """Score one ground-truth instance against a PoseEstimate (or None: missed)."""
+    inside = bool(instance.box_uv[0] >= -0.5 and instance.box_uv[1] >= -0.5
+                  and instance.box_uv[2] <= camera.width - 0.5
+                  and instance.box_uv[3] <= camera.height - 0.5)
+    threshold = ADD_THRESHOLD * model.diameter
+    if pose is None:
+        nan = float('nan')
+        return InstanceScore(model.name, False, inside, nan, threshold, nan, nan, nan, nan)
+    args = (pose.rotation, pose.translation, instance.rotation, instance.translation)
+    distance = metrics.adi if model.is_symmetric else metrics.add
+    re_deg, te_m = metrics.cm_deg_errors(*args, model.symmetry_transforms)
+    return InstanceScore(
+        model.name, True, inside, distance(*args, model.eval_points), threshold, re_deg, te_m,
+        metrics.proj(*args, camera.k, model.eval_points),
+        float(euler_error_deg(pose.rotation, instance.rotation)[0]))
+
+
+def summarize(scores):
+    """Per-object figures (POSE_KEYS) from a list of InstanceScore of one object."""
+    def errors(name):
+        return np.array([getattr(s, name) for s in scores], dtype=float)
+
+    found = errors('re_deg')[~np.isnan(errors('re_deg'))]
+    te_found = errors('te_m')[~np.isnan(errors('te_m'))]
+    inside = np.array([s.box_inside_image for s in scores], dtype=bool)
+    with np.errstate(invalid='ignore'):
+        cm_deg = (errors('re_deg') < RE_THRESHOLD_DEG) & (errors('te_m') < TE_THRESHOLD_M)
+        add_ok = errors('add_error') < errors('add_threshold')
+    return {
+        'n': len(scores),
+        'detected': int(sum(s.detected for s in scores)),
+        'add_s_recall': float(add_ok.mean()) if scores else math.nan,
+        'cm5deg5': float(cm_deg.mean()) if scores else math.nan,
+        'proj5px': metrics.recall(errors('proj_px'), PROJ_THRESHOLD_PX),
+        're_median_deg': float(np.median(found)) if found.size else math.nan,
+        'te_median_mm': float(np.median(te_found) * 1e3) if te_found.size else math.nan,
+        'euler_mean_deg': float(np.nanmean(errors('euler_deg'))) if found.size else math.nan,
+        'te5cm_uncut': metrics.recall(errors('te_m')[inside], TE_THRESHOLD_M),
+    }
+
+
+def mean_over_objects(per_object, keys):
+    """Average each key over the objects that have a finite value for it."""
+    mean = {}
+    for key in keys:
+        values = [v[key] for v in per_object.values() if _finite(v.get(key))]
+        mean[key] = float(np.mean(values)) if values else math.nan
+    return mean
+
+
+def timing_summary(timings):
+    """{stage: {'median', 'p95'}} in ms from a list of per-frame {stage: ms} dicts."""
+    stages = sorted({stage for frame in timings for stage in frame})
+    return {stage: {'median': float(np.median(values)), 'p95': float(np.percentile(values, 95))}
+            for stage in stages
+            for values in [[frame[stage] for frame in timings if stage in frame]]}
+
+
+def ground_truth_detections(instances):
+    """Make detections with score 1 from ground-truth instances (the ``--boxes gt`` oracle)."""
+    return [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
+
+
+def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progress=True):
+    """
+    Run the pipeline over BOP frames and score it.
+
+    Args:
+        frames: BopFrame list.
+        pipeline: a PosePipeline whose ``models`` are the objects to evaluate.
+        boxes: 'gt' (amodal ground-truth boxes of the counted instances) or 'detector'.
+        rotation: 'gt' (ground-truth rotations of the matched instances) or 'estimator'.
+        min_visib: instances less visible than this are not counted.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        The report dict: {'objects': {name: POSE_KEYS}, 'mean': {...}, 'timing_ms': {...},
+        'frames': number of frames}.
+
+    """
+    scores = {name: [] for name in pipeline.models}
+    timings = []
+    for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress):
+        counted = [i for i in frame.instances
+                   if i.object_name in pipeline.models and i.visib_fract >= min_visib]
+        image = frame.load_image()
+        detections = ground_truth_detections(counted) if boxes == 'gt' else None
+        if rotation == 'gt':
+            if detections is None:
+                detections = pipeline.detector(image)
+            detections = [d for d in detections if d.object_name in pipeline.models]
+            truths = _match_to_truth(detections, frame.instances)
+            keep = [k for k, t in enumerate(truths) if t is not None]
+            detections = [detections[k] for k in keep]
+            rotations = np.array([truths[k].rotation for k in keep]).reshape(-1, 3, 3)
+            result = pipeline.estimate(image, frame.camera, detections, rotations)
+        else:
+            result = pipeline.estimate(image, frame.camera, detections)
+        timings.append(result.timings_ms)
+        poses = _poses_for_instances(result.poses, counted)
+        for instance, pose in zip(counted, poses):
+            scores[instance.object_name].append(
+                score_instance(pipeline.models[instance.object_name], instance, pose,
+                               frame.camera))
+    per_object = {name: summarize(s) for name, s in scores.items()}
+    return {'objects': per_object, 'mean': mean_over_objects(per_object, POSE_KEYS),
+            'timing_ms': timing_summary(timings), 'frames': len(frames)}
+
+
+def _match_to_truth(detections, instances):
+    """Find the ground-truth instance each detection localises (or None), per object."""
+    truths = [None] * len(detections)
+    for name in {d.object_name for d in detections}:
+        det_idx = [k for k, d in enumerate(detections) if d.object_name == name]
+        gts = [i for i in instances if i.object_name == name]
+        matches = match_by_score([detections[k].box_uv for k in det_idx],
+                                 [detections[k].score for k in det_idx],
+                                 [g.box_uv for g in gts], MATCH_IOU)
+        for k, m in zip(det_idx, matches):
+            truths[k] = gts[m] if m >= 0 else None
+    return truths
+
+
+def _poses_for_instances(poses, instances):
+    """For each counted instance, the pose whose detection localises it (or None)."""
+    by_truth = {}
+    truths = _match_to_truth([p.detection for p in poses], instances)
+    for pose, truth in zip(poses, truths):
+        if truth is not None:
+            by_truth[id(truth)] = pose
+    return [by_truth.get(id(i)) for i in instances]
+
+
+def _finite(value):
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+TABLE_COLUMNS = (('n', 'n', '{:d}'), ('detected', 'found', '{:d}'),
+                 ('add_s_recall', 'ADD(-S)', '{:.3f}'), ('cm5deg5', '5cm5deg', '{:.3f}'),
+                 ('proj5px', 'proj5px', '{:.3f}'), ('re_median_deg', 're_med_deg', '{:.2f}'),
+                 ('te_median_mm', 'te_med_mm', '{:.1f}'),
+                 ('euler_mean_deg', 'euler_deg', '{:.2f}'))
+
+
+def format_report(report):
+    """Format the per-object table of a report, with the mean row and stage timings."""
+    header = f'{"object":<12}' + ''.join(f'{title:>11}' for _, title, _ in TABLE_COLUMNS)
+    lines = [header, '-' * len(header)]
+    rows = list(report['objects'].items()) + [('mean', report['mean'])]
+    for name, values in rows:
+        cells = []
+        for key, _, fmt in TABLE_COLUMNS:
+            value = values.get(key)
+            if _finite(value):
+                text = fmt.format(int(value) if fmt == '{:d}' else value)
+            else:
+                text = '-'
+            cells.append(f'{text:>11}')
+        if name == 'mean':
+            lines.append('-' * len(header))
+        lines.append(f'{name:<12}' + ''.join(cells))
+    timing = ', '.join(f'{stage} {t["median"]:.2f} ms (p95 {t["p95"]:.2f})'
+                       for stage, t in report.get('timing_ms', {}).items())
+    if timing:
+        lines.append(f'timing per frame: {timing}')
+    return '\n'.join(lines)

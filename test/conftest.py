@@ -1,0 +1,56 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Shared fixtures: the real LM-O frames in ../shared (or $BBPOSE_DATASET)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+from bbpose_ros.core.bop import BopDataset
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def dataset_path():
+    """Return the LM-O dataset folder the tests read (never copied into the repo)."""
+    return Path(os.environ.get('BBPOSE_DATASET', REPO_ROOT.parent / 'shared/datasets/lmo'))
+
+
+@pytest.fixture(scope='session')
+def lmo_root():
+    """Path of the LM-O dataset; fails loudly when it is missing."""
+    path = dataset_path().resolve()
+    if not (path / 'models' / 'models_info.json').is_file():
+        pytest.fail(f'LM-O dataset not found at {path}; set BBPOSE_DATASET')
+    return path
+
+
+@pytest.fixture(scope='session')
+def lmo(lmo_root):
+    """Open the LM-O BopDataset."""
+    return BopDataset(lmo_root)
+
+
+@pytest.fixture(scope='session')
+def lmo_models(lmo):
+    """All 8 LM-O object models, {name: ObjectModel}, metres."""
+    return lmo.load_models()
+
+
+@pytest.fixture(scope='session')
+def lmo_frames(lmo):
+    """All frames of the LM-O subset."""
+    return lmo.frames()

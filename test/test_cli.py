@@ -1,0 +1,66 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The ``bbpose`` command as a user runs it: real output, clear errors, no half files."""
+
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+from bbpose_ros.core.evaluation import POSE_KEYS
+
+
+def bbpose(*args, cwd=None):
+    """Run ``bbpose`` in a fresh interpreter; returns the CompletedProcess."""
+    return subprocess.run([sys.executable, '-m', 'bbpose_ros.cli.main', *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd, timeout=300,
+                          env={**os.environ, 'PYTHONPATH': str(Path(__file__).parents[1])})
+
+
+def test_eval_with_ground_truth_boxes_and_rotations(lmo_root, tmp_path):
+    out = tmp_path / 'report.json'
+    result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
+                    '--objects', 'ape,driller', '--max-frames', '10', '--json', out)
+    assert result.returncode == 0, result.stderr
+    assert 'driller' in result.stdout and 'mean' in result.stdout
+    report = json.loads(out.read_text())
+    assert sorted(report['objects']) == ['ape', 'driller']
+    for values in list(report['objects'].values()) + [report['mean']]:
+        assert set(POSE_KEYS) <= set(values)
+    assert report['mean']['te_median_mm'] < 10.0
+    assert report['objects']['driller']['n'] == 10
+    assert {'translation', 'total'} <= set(report['timing_ms'])
+
+
+def test_make_bag_writes_a_bag(lmo_root, tmp_path):
+    result = bbpose('make-bag', '--dataset', lmo_root, '--out', tmp_path / 'bag',
+                    '--max-frames', '2', '--start-stamp', '10')
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / 'bag' / 'metadata.yaml').is_file()
+
+
+def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
+    out = tmp_path / 'report.json'
+    missing = bbpose('eval', '--dataset', tmp_path / 'nope', '--boxes', 'gt', '--rotation',
+                     'gt', '--json', out)
+    assert missing.returncode == 2
+    assert 'dataset folder not found' in missing.stderr and 'nope' in missing.stderr
+    unknown = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
+                     '--objects', 'ape,banana', '--json', out)
+    assert unknown.returncode == 2 and 'banana' in unknown.stderr
+    bag = bbpose('make-bag', '--dataset', tmp_path / 'nope', '--out', tmp_path / 'bag')
+    assert bag.returncode == 2 and 'nope' in bag.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -1,0 +1,88 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Quaternion conventions, rotation errors and the allocentric/egocentric views."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bbpose_ros.core import rotations as rot
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
+
+MATRICES = Rotation.random(200, random_state=1).as_matrix()
+
+
+def test_quaternion_matrix_round_trip_and_hemisphere():
+    q = rot.matrix_to_quat_wxyz(MATRICES)
+    assert q.shape == (200, 4)
+    assert (q[:, 0] >= 0).all()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(rot.quat_wxyz_to_matrix(q), MATRICES, atol=1e-12)
+    np.testing.assert_allclose(rot.quat_wxyz_to_matrix(-q), MATRICES, atol=1e-12)
+
+
+def test_ros_order_matches_scipy_scalar_last():
+    q_xyzw = Rotation.from_matrix(MATRICES).as_quat()
+    np.testing.assert_allclose(rot.quat_wxyz_to_matrix(rot.xyzw_to_wxyz(q_xyzw)), MATRICES,
+                               atol=1e-12)
+    np.testing.assert_allclose(rot.wxyz_to_xyzw(rot.xyzw_to_wxyz(q_xyzw)), q_xyzw)
+    # A 90 degree turn about z: (w, x, y, z) = (cos 45, 0, 0, sin 45).
+    s = np.sqrt(0.5)
+    np.testing.assert_allclose(rot.quat_wxyz_to_matrix([s, 0, 0, s]),
+                               [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+
+
+def test_positive_hemisphere_flips_only_negative_q0():
+    q = np.array([[-0.5, 0.5, 0.5, 0.5], [0.5, -0.5, 0.5, 0.5]])
+    np.testing.assert_allclose(rot.positive_hemisphere(q),
+                               [[0.5, -0.5, -0.5, -0.5], [0.5, -0.5, 0.5, 0.5]])
+
+
+def test_rotation_error_is_the_relative_angle():
+    turn = Rotation.from_rotvec([0.0, 0.0, np.radians(30.0)]).as_matrix()
+    assert rot.rotation_error_deg(turn @ MATRICES[0], MATRICES[0]) == pytest.approx(30.0)
+    assert rot.rotation_error_deg(MATRICES[0], MATRICES[0]) == pytest.approx(0.0, abs=1e-5)
+
+
+def test_euler_error_of_a_turn_about_x():
+    turn = Rotation.from_euler('xyz', [10.0, 0.0, 0.0], degrees=True).as_matrix()
+    assert rot.euler_error_deg(turn, np.eye(3))[0] == pytest.approx(10.0 / 3.0)
+    assert rot.euler_error_deg(MATRICES, MATRICES).max() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_allocentric_round_trip_and_optical_axis_identity():
+    rays = np.random.default_rng(0).normal(size=(200, 3)) * [0.4, 0.3, 0.0] + [0, 0, 1]
+    allo = rot.egocentric_to_allocentric(MATRICES, rays)
+    np.testing.assert_allclose(rot.allocentric_to_egocentric(allo, rays), MATRICES, atol=1e-12)
+    on_axis = rot.allocentric_to_egocentric(MATRICES[:3], [[0, 0, 1]] * 3)
+    np.testing.assert_allclose(on_axis, MATRICES[:3], atol=1e-12)
+    views = rot.ray_rotation(rays)
+    unit = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    np.testing.assert_allclose(views @ [0.0, 0.0, 1.0], unit, atol=1e-12)
+
+
+def test_camera_from_k_p_and_scaling():
+    k = [[572.4, 0, 325.3], [0, 573.6, 242.0], [0, 0, 1]]
+    camera = CameraIntrinsics.from_k(k, 640, 480)
+    p = np.hstack([np.array(k), np.zeros((3, 1))])
+    assert CameraIntrinsics.from_p(p, 640, 480) == camera
+    half = camera.scaled(320, 240)
+    point = np.array([0.1, -0.05, 0.8])
+    # Pixel edges scale by 1/2: u_half + 0.5 = (u + 0.5) / 2.
+    np.testing.assert_allclose(half.project(point) + 0.5, (camera.project(point) + 0.5) / 2)
+    np.testing.assert_allclose(camera.normalized(camera.project(point)), point[:2] / point[2])
+    with pytest.raises(InputError, match='fx'):
+        CameraIntrinsics.from_k(np.zeros((3, 3)), 640, 480)
