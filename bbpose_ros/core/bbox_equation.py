@@ -117,7 +117,7 @@ def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights
     n = len(rotations)
     weights = np.ones((n, 4)) if side_weights is None else np.asarray(side_weights, float)
     boxes_norm = (boxes_uv - [cx, cy, cx, cy]) / [fx, fy, fx, fy]
-    rotated = np.einsum('nij,nmj->nmi', rotations, points)
+    rotated = points @ np.swapaxes(rotations, 1, 2)                # (N, M, 3): R X
     touching = _extreme_indices(rotated[:, :, 0], rotated[:, :, 1])
     translations = _solve(rotated, touching, boxes_norm, weights)
     iterations = np.zeros(n, dtype=int)
