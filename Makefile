@@ -39,6 +39,8 @@ test: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/python -m pytest test
 
 demo: setup
+	@echo "[demo] offline evaluation of the Bounding Box Equation on $(DATASET)"
+	@echo "[demo] (ground-truth boxes and rotations; the node demo replaces this later)"
 	$(BIN)/bbpose eval --dataset $(DATASET) --boxes gt --rotation gt --json $(OUT)/eval_gt.json
 
 lint: setup

@@ -188,14 +188,22 @@ def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progres
         else:
             result = pipeline.estimate(image, frame.camera, detections)
         timings.append(result.timings_ms)
-        poses = _poses_for_instances(result.poses, counted)
-        for instance, pose in zip(counted, poses):
-            scores[instance.object_name].append(
-                score_instance(pipeline.models[instance.object_name], instance, pose,
-                               frame.camera))
+        for score in score_frame(pipeline.models, counted, result.poses, frame.camera):
+            scores[score.object_name].append(score)
+    return dict(summarize_objects(scores), timing_ms=timing_summary(timings),
+                frames=len(frames))
+
+
+def score_frame(models, instances, poses, camera):
+    """Score each counted instance of a frame against the pose that localises it (or none)."""
+    return [score_instance(models[instance.object_name], instance, pose, camera)
+            for instance, pose in zip(instances, _poses_for_instances(poses, instances))]
+
+
+def summarize_objects(scores):
+    """Make the report's {'objects': {name: POSE_KEYS}, 'mean'} from {name: [InstanceScore]}."""
     per_object = {name: summarize(s) for name, s in scores.items()}
-    return {'objects': per_object, 'mean': mean_over_objects(per_object, POSE_KEYS),
-            'timing_ms': timing_summary(timings), 'frames': len(frames)}
+    return {'objects': per_object, 'mean': mean_over_objects(per_object, POSE_KEYS)}
 
 
 def _match_to_truth(detections, instances):
