@@ -1,0 +1,122 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose synth``: render synthetic training images of a dataset's objects, BOP format.
+
+Output (see ``bbpose_ros.core.synth.export``): ``camera.json``, ``train_synth/000000/``
+with images, visible masks and ground truth, ``previews/`` with boxes drawn, and
+``synth_info.json`` (seed, objects, settings). The folder appears only when complete: it is
+written under a temporary name next to it and renamed at the end.
+"""
+
+from dataclasses import asdict
+from pathlib import Path
+import shutil
+import tempfile
+
+from tqdm import tqdm
+
+from bbpose_ros.core.bop import read_json
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.models import load_bop_models, resolve_object_names
+from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
+from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
+    write_rgb_png
+
+
+def add_parser(subparsers):
+    """Register the ``synth`` subcommand on an argparse subparsers object; return it."""
+    parser = subparsers.add_parser(
+        'synth', help='render synthetic training images with ground truth (BOP format)',
+        description="Render synthetic scenes of a BOP dataset's object meshes (random "
+                    'poses, distractors, backgrounds and camera effects) with their exact '
+                    'ground truth.')
+    parser.add_argument('--dataset', required=True, type=Path,
+                        help='BOP dataset folder with camera.json and models/')
+    parser.add_argument('--out', required=True, type=Path,
+                        help='output folder (must not exist yet)')
+    parser.add_argument('--count', required=True, type=int, help='number of images')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='random seed; image i of a seed is always the same (default 0)')
+    parser.add_argument('--objects', default='',
+                        help='comma-separated target objects, e.g. ape,can (default all); '
+                             "the dataset's other objects appear as unlabelled distractors")
+    parser.add_argument('--previews', type=int, default=8,
+                        help='number of preview images with boxes drawn (default 8)')
+    parser.set_defaults(func=run)
+    return parser
+
+
+def load_camera(dataset_dir):
+    """Read the CameraIntrinsics of a BOP dataset's ``camera.json``."""
+    path = Path(dataset_dir) / 'camera.json'
+    data = read_json(path)
+    try:
+        return CameraIntrinsics(float(data['fx']), float(data['fy']), float(data['cx']),
+                                float(data['cy']), int(data['width']), int(data['height']))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f'{path}: needs numeric fx, fy, cx, cy, width, height ({err})') from err
+
+
+def run(args):
+    """Run ``bbpose synth``; returns the exit status, bad input raises InputError."""
+    if args.count < 1:
+        raise InputError(f'--count must be at least 1, got {args.count}')
+    if args.seed < 0:
+        raise InputError(f'--seed must be non-negative, got {args.seed}')
+    if args.previews < 0:
+        raise InputError(f'--previews must be non-negative, got {args.previews}')
+    out = Path(args.out)
+    if out.exists():
+        raise InputError(f'output folder already exists: {out} (choose a new one)')
+    if not Path(args.dataset).is_dir():
+        raise InputError(f'dataset folder not found: {args.dataset}')
+    camera = load_camera(args.dataset)
+    models = load_bop_models(args.dataset)
+    requested = [name.strip() for name in args.objects.split(',') if name.strip()]
+    targets = resolve_object_names(requested, models)
+    distractors = {name: model for name, model in models.items() if name not in targets}
+    config = SynthConfig()
+    scenes = SyntheticScenes({name: models[name] for name in targets}, camera, args.seed,
+                             config, distractors)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
+    try:
+        _write(scenes, models, staging, args, targets, distractors, config)
+        staging.rename(out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    finally:
+        scenes.close()
+    print(f'wrote {args.count} images of {", ".join(targets)} to {out}')
+    return 0
+
+
+def _write(scenes, models, root, args, targets, distractors, config):
+    """Render and write all samples, previews and settings under ``root``."""
+    writer = BopSceneWriter(root, scenes.camera,
+                            {name: model.obj_id for name, model in models.items()})
+    (root / 'previews').mkdir()
+    for index in tqdm(range(args.count), desc='synth', unit='img'):
+        sample = scenes.sample(index)
+        writer.add(index, sample)
+        if index < args.previews:
+            write_rgb_png(root / 'previews' / f'{index:06d}.png', draw_preview(sample))
+    writer.finish()
+    write_json(root / 'synth_info.json', {
+        'seed': args.seed, 'count': args.count, 'objects': targets,
+        'distractor_objects': sorted(distractors), 'config': asdict(config)})

@@ -1,0 +1,80 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Projection conventions shared by the renderers and the ground truth.
+
+Pixel coordinates are continuous and follow ``CameraIntrinsics``: the centre of pixel
+(col, row) is at (u, v) = (col, row), so pixel (col, row) spans [col - 0.5, col + 0.5] x
+[row - 0.5, row + 0.5]. Boxes are [u_min, v_min, u_max, v_max] in these coordinates.
+"""
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+
+
+def opengl_projection(camera, near, far, origin=(0, 0), size=None):
+    """
+    Build the (4, 4) OpenGL projection of an OpenCV camera, for a window onto its image.
+
+    The window is ``size`` = (width, height) pixels (default the whole image) whose first
+    pixel is image pixel ``origin`` = (col, row). Camera coordinates are OpenCV's (x right,
+    y down, z forward, metres); ``near`` and ``far`` (metres) bound the depth range. GL puts
+    pixel centres at window coordinate i + 0.5 while OpenCV puts them at i, hence the
+    ``c + 0.5`` below. Image row 0 maps to window row 0, so ``glReadPixels`` returns the rows
+    top first and no flip is needed.
+    """
+    width, height = size if size is not None else (camera.width, camera.height)
+    cx = camera.cx - origin[0] + 0.5
+    cy = camera.cy - origin[1] + 0.5
+    return np.array([
+        [2.0 * camera.fx / width, 0.0, 2.0 * cx / width - 1.0, 0.0],
+        [0.0, 2.0 * camera.fy / height, 2.0 * cy / height - 1.0, 0.0],
+        [0.0, 0.0, (far + near) / (far - near), -2.0 * far * near / (far - near)],
+        [0.0, 0.0, 1.0, 0.0],
+    ])
+
+
+def transform_points(points, rotation, translation):
+    """Map (N, 3) model points to the camera frame: x_cam = R x + t (metres)."""
+    return np.asarray(points, dtype=float) @ np.asarray(rotation, dtype=float).T + translation
+
+
+def projected_box_uv(camera, points, rotation, translation):
+    """
+    Compute the amodal box (4,) [u_min, v_min, u_max, v_max] of (N, 3) points at a pose.
+
+    The extremes of the projected points, continuous pixels, possibly outside the image.
+    Pass a mesh's convex-hull vertices for speed: the extremes always lie among them. Points
+    at or behind the camera (z <= 0) have no projection and are an InputError.
+    """
+    points_cam = transform_points(points, rotation, translation)
+    if np.any(points_cam[:, 2] <= 0.0):
+        raise InputError('cannot project a box: part of the object is behind the camera')
+    uv = camera.project(points_cam)
+    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
+
+
+def mask_box_uv(mask):
+    """
+    Compute the box (4,) [u_min, v_min, u_max, v_max] of the set pixels of an (H, W) mask.
+
+    The outer edges of the extreme pixels, continuous pixels; None for an empty mask.
+    """
+    cols = np.flatnonzero(mask.any(axis=0))
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(cols) == 0:
+        return None
+    return np.array([cols[0] - 0.5, rows[0] - 0.5, cols[-1] + 0.5, rows[-1] + 0.5])

@@ -1,0 +1,56 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Camera effects on synthetic images: colour jitter, blur, sensor noise, JPEG artefacts."""
+
+import cv2
+import numpy as np
+
+
+def jitter_colors(rng, image, config):
+    """Random brightness, contrast and saturation of an (H, W, 3) uint8 RGB image."""
+    image = image.astype(np.float32)
+    gray = image.mean(axis=2, keepdims=True)
+    image = gray + (image - gray) * rng.uniform(*config.saturation_range)
+    mean = float(image.mean())
+    image = mean + (image - mean) * rng.uniform(*config.contrast_range)
+    image += rng.uniform(*config.brightness_range)
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def add_noise(rng, image, sigma):
+    """Add Gaussian noise of ``sigma`` (in 0..255 units) to an (H, W, 3) uint8 image."""
+    noise = rng.normal(0.0, sigma, image.shape).astype(np.float32)
+    return np.clip(image.astype(np.float32) + noise, 0, 255).astype(np.uint8)
+
+
+def jpeg_roundtrip(image, quality):
+    """Encode an (H, W, 3) uint8 RGB image as JPEG at ``quality`` (0-100) and decode it."""
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    ok, data = cv2.imencode('.jpg', bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError('OpenCV failed to encode a JPEG image')
+    return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def apply_camera_effects(rng, image, config):
+    """Apply the camera effects of a ``SynthConfig`` to an (H, W, 3) uint8 RGB image."""
+    image = jitter_colors(rng, image, config)
+    if rng.random() < config.blur_probability:
+        image = cv2.GaussianBlur(image, (0, 0), rng.uniform(*config.blur_sigma_range))
+    image = add_noise(rng, image, rng.uniform(*config.noise_sigma_range))
+    if rng.random() < config.jpeg_probability:
+        image = jpeg_roundtrip(image, rng.integers(config.jpeg_quality_range[0],
+                                                   config.jpeg_quality_range[1] + 1))
+    return image

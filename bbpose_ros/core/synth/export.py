@@ -1,0 +1,120 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Writing synthetic samples in the BOP format (readable by ``bbpose_ros.core.bop``).
+
+Layout under ``root``: ``camera.json`` and ``<split>/<scene:06d>/`` with ``rgb/`` (PNG),
+``mask_visib/`` (PNG per instance), ``scene_gt.json`` (rotation, translation in mm),
+``scene_camera.json`` and ``scene_gt_info.json``. BOP's integer boxes (x, y, w, h) follow the
+convention of ``bop_box_to_uv``; the exact continuous boxes are kept in the extra fields
+``box_uv`` and ``visible_box_uv`` ([u_min, v_min, u_max, v_max], OpenCV pixel convention).
+"""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bbpose_ros.core.models import MM_TO_M
+from bbpose_ros.core.render import mask_box_uv
+
+
+def uv_to_bop_box(box_uv):
+    """
+    Convert to an integer BOP box [x, y, w, h] a continuous box [u_min, v_min, u_max, v_max].
+
+    The inverse of ``bop_box_to_uv`` (x = u_min, x + w + 1 = u_max) up to rounding.
+    """
+    x, y = round(float(box_uv[0])), round(float(box_uv[1]))
+    return [x, y, max(round(float(box_uv[2])) - x - 1, 0),
+            max(round(float(box_uv[3])) - y - 1, 0)]
+
+
+def camera_json(camera):
+    """Return the BOP ``camera.json`` fields of a CameraIntrinsics."""
+    return {'fx': camera.fx, 'fy': camera.fy, 'cx': camera.cx, 'cy': camera.cy,
+            'width': camera.width, 'height': camera.height, 'depth_scale': 1.0}
+
+
+def write_json(path, data):
+    """Write ``data`` as indented JSON to ``path``."""
+    Path(path).write_text(json.dumps(data, indent=1) + '\n')
+
+
+def write_rgb_png(path, image_rgb):
+    """Write an (H, W, 3) uint8 RGB image as PNG; a failed write is an OSError."""
+    if not cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)):
+        raise OSError(f'cannot write image {path}')
+
+
+class BopSceneWriter:
+    """
+    Collects samples into one BOP scene folder; ``finish`` writes the JSON files.
+
+    ``obj_ids`` maps object names to BOP object ids.
+    """
+
+    def __init__(self, root, camera, obj_ids, split='train_synth', scene_id=0):
+        self.root = Path(root)
+        self.camera = camera
+        self.obj_ids = dict(obj_ids)
+        self.scene_dir = self.root / split / f'{scene_id:06d}'
+        (self.scene_dir / 'rgb').mkdir(parents=True)
+        (self.scene_dir / 'mask_visib').mkdir()
+        self.scene_gt, self.scene_camera, self.scene_gt_info = {}, {}, {}
+
+    def add(self, image_id, sample):
+        """Write sample ``image_id`` (int)'s image and masks and record its ground truth."""
+        write_rgb_png(self.scene_dir / 'rgb' / f'{image_id:06d}.png', sample.image_rgb)
+        gts, infos = [], []
+        for index, instance in enumerate(sample.instances):
+            mask_path = self.scene_dir / 'mask_visib' / f'{image_id:06d}_{index:06d}.png'
+            if not cv2.imwrite(str(mask_path), instance.mask.astype(np.uint8) * 255):
+                raise OSError(f'cannot write mask {mask_path}')
+            visible_box = mask_box_uv(instance.mask)
+            gts.append({'obj_id': self.obj_ids[instance.object_name],
+                        'cam_R_m2c': instance.rotation.reshape(-1).tolist(),
+                        'cam_t_m2c': (instance.translation / MM_TO_M).tolist()})
+            infos.append({'bbox_obj': uv_to_bop_box(instance.box_uv),
+                          'bbox_visib': uv_to_bop_box(visible_box),
+                          'px_count_visib': int(np.count_nonzero(instance.mask)),
+                          'visib_fract': float(instance.visib_fract),
+                          'box_uv': instance.box_uv.tolist(),
+                          'visible_box_uv': visible_box.tolist()})
+        key = str(image_id)
+        self.scene_gt[key] = gts
+        self.scene_gt_info[key] = infos
+        self.scene_camera[key] = {'cam_K': sample.camera.k.reshape(-1).tolist(),
+                                  'depth_scale': 1.0}
+
+    def finish(self):
+        """Write ``camera.json`` and the scene's JSON files."""
+        write_json(self.root / 'camera.json', camera_json(self.camera))
+        write_json(self.scene_dir / 'scene_gt.json', self.scene_gt)
+        write_json(self.scene_dir / 'scene_gt_info.json', self.scene_gt_info)
+        write_json(self.scene_dir / 'scene_camera.json', self.scene_camera)
+
+
+def draw_preview(sample):
+    """Draw the amodal boxes and labels on an (H, W, 3) uint8 RGB copy of the image."""
+    image = sample.image_rgb.copy()
+    for instance in sample.instances:
+        u0, v0, u1, v1 = (int(round(float(x))) for x in instance.box_uv)
+        cv2.rectangle(image, (u0, v0), (u1, v1), (0, 255, 0), 1)
+        cv2.putText(image, f'{instance.object_name} {instance.visib_fract:.2f}',
+                    (u0, max(v0 - 3, 10)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 0), 1,
+                    cv2.LINE_AA)
+    return image
