@@ -41,6 +41,7 @@ setup(
     entry_points={
         'console_scripts': [
             'bbpose = bbpose_ros.cli.main:main',
+            'bbpose_node = bbpose_ros.ros.node:main',
         ],
     },
 )

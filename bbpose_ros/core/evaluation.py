@@ -20,7 +20,7 @@ an instance the pipeline misses counts as a failure in every recall. Medians and
 errors are taken over the instances that were found.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -197,7 +197,14 @@ def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progres
 def score_frame(models, instances, poses, camera):
     """Score each counted instance of a frame against the pose that localises it (or none)."""
     return [score_instance(models[instance.object_name], instance, pose, camera)
-            for instance, pose in zip(instances, _poses_for_instances(poses, instances))]
+            for instance, pose in zip(instances,
+                                      _poses_for_instances(models, poses, instances, camera))]
+
+
+def projected_box(model, camera, rotation, translation):
+    """Return the box [u_min, v_min, u_max, v_max] of the model projected at a pose."""
+    uv = camera.project(model.hull_points @ np.asarray(rotation).T + translation)
+    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
 
 
 def summarize_objects(scores):
@@ -220,14 +227,26 @@ def _match_to_truth(detections, instances):
     return truths
 
 
-def _poses_for_instances(poses, instances):
-    """For each counted instance, the pose whose detection localises it (or None)."""
+def _poses_for_instances(models, poses, instances, camera):
+    """
+    For each counted instance, the pose that localises it (or None).
+
+    Poses and instances are matched through the model's box projected at each pose, so
+    scoring needs nothing but poses: the offline pipeline and the ROS node (which publishes
+    poses only) are matched alike.
+    """
+    def box_of(name, rotation, translation):
+        return projected_box(models[name], camera, rotation, translation)
+
+    boxed_poses = [Detection(p.object_name, p.detection.score,
+                             box_of(p.object_name, p.rotation, p.translation)) for p in poses]
+    boxed_truths = [replace(i, box_uv=box_of(i.object_name, i.rotation, i.translation))
+                    for i in instances]
     by_truth = {}
-    truths = _match_to_truth([p.detection for p in poses], instances)
-    for pose, truth in zip(poses, truths):
+    for pose, truth in zip(poses, _match_to_truth(boxed_poses, boxed_truths)):
         if truth is not None:
             by_truth[id(truth)] = pose
-    return [by_truth.get(id(i)) for i in instances]
+    return [by_truth.get(id(t)) for t in boxed_truths]
 
 
 def _finite(value):

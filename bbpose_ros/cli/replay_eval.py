@@ -1,0 +1,190 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose replay-eval``: replay a bag through ``bbpose_node`` and score what it publishes.
+
+The node runs as a child process; the bag is played in lockstep (see ``ros.replay``), the
+node's outputs are recorded into a results bag beside the JSON, and its poses are scored
+against the bag's ground truth with the scoring code of ``bbpose eval``. Ground-truth and
+estimated poses are matched through their boxes: the projection of the object's mesh at
+each pose (the node publishes poses, not its detector's boxes).
+"""
+
+from pathlib import Path
+import sys
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from tqdm import tqdm
+
+from bbpose_ros.bags.reader import read_bag_frames
+from bbpose_ros.cli.common import write_json_atomic
+from bbpose_ros.core import plots
+from bbpose_ros.core.bop import GroundTruthInstance
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.evaluation import format_report, projected_box, score_frame
+from bbpose_ros.core.evaluation import summarize_objects, timing_summary
+from bbpose_ros.core.models import load_bop_models
+from bbpose_ros.core.pipeline import Detection, PoseEstimate
+from bbpose_ros.ros.bag_player import BagPlayer
+from bbpose_ros.ros.params import package_config_file, read_params_file
+from bbpose_ros.ros.params import resolve_dataset_dir
+from bbpose_ros.ros.replay import NodeProcess, Recorder, replay_lockstep
+from bbpose_ros.ros.replay import use_large_image_profile, write_results_bag
+
+DEFAULT_PARAMS = package_config_file('bbpose.yaml')
+OVERLAY_FRAMES = 4
+
+
+def add_parser(subparsers):
+    """Register the ``replay-eval`` subcommand."""
+    parser = subparsers.add_parser(
+        'replay-eval', help='replay a bag through bbpose_node and score its poses',
+        description='Start bbpose_node, play a bag made by make-bag into it (each frame '
+                    'after the previous one is answered), record its outputs into a results '
+                    'bag beside --json, and score its poses against the ground truth of the bag '
+                    'like bbpose eval (same table and JSON keys, plus frames sent/answered '
+                    'and timing_ms.end_to_end: image published -> pose received, '
+                    'timing_ms.answer: image published -> MarkerArray received).')
+    parser.add_argument('--bag', type=Path, required=True, help='bag with ground truth')
+    parser.add_argument('--json', type=Path, required=True, help='report to write')
+    parser.add_argument('--plots', type=Path, default=None,
+                        help='folder for PNG charts and overlay images')
+    parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
+                        help='parameters file of the node (default %(default)s)')
+    parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='override one node parameter (repeatable)')
+    parser.add_argument('--answer-timeout', type=float, default=30.0,
+                        help='seconds to wait for the answer to each frame '
+                             '(default %(default)s)')
+    parser.set_defaults(func=run)
+
+
+def results_bag_path(json_path):
+    """Return the results bag folder beside the report: ``<stem>_results_bag``."""
+    return json_path.with_name(f'{json_path.stem}_results_bag')
+
+
+def ground_truth_instances(frame, models):
+    """Make GroundTruthInstances of a BagFrame's ground truth (configured objects only)."""
+    instances = []
+    for name, poses in frame.ground_truth.items():
+        for rotation, translation in poses if name in models else ():
+            box = projected_box(models[name], frame.camera, rotation, translation)
+            instances.append(GroundTruthInstance(name, models[name].obj_id, rotation,
+                                                 translation, box, box, 1.0))
+    return instances
+
+
+def node_estimates(entries, models, camera):
+    """Make PoseEstimates of a frame's recorded (name, rotation, translation) poses."""
+    return [PoseEstimate(Detection(name, 1.0, projected_box(models[name], camera, rotation,
+                                                            translation)),
+                         rotation, translation)
+            for name, rotation, translation in entries]
+
+
+def score_recording(frames, recording, models):
+    """Score the node's poses per frame; returns {object name: [InstanceScore]}."""
+    scores = {name: [] for name in models}
+    for frame in frames:
+        estimates = node_estimates(recording.poses.get(frame.stamp_ns, []), models,
+                                   frame.camera)
+        for score in score_frame(models, ground_truth_instances(frame, models), estimates,
+                                 frame.camera):
+            scores[score.object_name].append(score)
+    return scores
+
+
+def latencies_ms(recording):
+    """
+    Return per-frame {stage: ms} of the graph round trip, from the image's publication.
+
+    ``end_to_end``: to its last PoseStamped received (frames with poses); ``answer``: to its
+    MarkerArray received (every answered frame).
+    """
+    latencies = []
+    for stamp, sent_s in recording.published_s.items():
+        arrivals = {'end_to_end': recording.pose_received_s.get(stamp),
+                    'answer': recording.answered_s.get(stamp)}
+        latencies.append({key: (arrival_s - sent_s) * 1e3
+                          for key, arrival_s in arrivals.items() if arrival_s is not None})
+    return latencies
+
+
+def write_plots(folder, frames, recording, models, scores, per_object):
+    """Write the recall curves, per-object bars and a few overlay images into ``folder``."""
+    plots.recall_curves(scores, folder / 'recall_curves.png')
+    plots.object_bars(per_object, folder / 'objects.png')
+    for index in np.linspace(0, len(frames) - 1, min(OVERLAY_FRAMES, len(frames))).astype(int):
+        frame = frames[index]
+        truths = [(i.object_name, i.rotation, i.translation)
+                  for i in ground_truth_instances(frame, models)]
+        image = plots.draw_comparison(frame.image_rgb, frame.camera, models, truths,
+                                      recording.poses.get(frame.stamp_ns, []))
+        plots.write_image(folder / f'overlay_{index:04d}.png', image)
+
+
+def record(args, objects, frame_count):
+    """Run the node, replay the bag into it and return the Recording."""
+    use_large_image_profile()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = Node('bbpose_replay_eval')
+    process = NodeProcess(args.params, args.param)
+    try:
+        player = BagPlayer(node, args.bag)
+        recorder = Recorder(node, objects)
+        with tqdm(total=frame_count, desc='replaying', unit='frame') as bar:
+            recording = replay_lockstep(player, recorder, process,
+                                        answer_timeout_s=args.answer_timeout,
+                                        progress=lambda sent: bar.update(sent - bar.n))
+    finally:
+        code = process.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    if code != 0:
+        print(f'bbpose replay-eval: warning: bbpose_node exited with code {code} on SIGINT',
+              file=sys.stderr)
+    return recording
+
+
+def run(args):
+    """Replay, score, print the table and write the JSON, bag and plots; returns 0."""
+    values = read_params_file(args.params, args.param)
+    models = load_bop_models(resolve_dataset_dir(values['dataset_dir']), values['objects'])
+    frames = read_bag_frames(args.bag)
+    if not frames or any(frame.camera is None for frame in frames):
+        raise InputError(f'bag {args.bag} has no frames or a frame without camera_info')
+    recording = record(args, list(models), len(frames))
+    bag_path = results_bag_path(args.json)
+    write_results_bag(bag_path, recording.messages)
+    scores = score_recording(frames, recording, models)
+    report = summarize_objects(scores)
+    report['timing_ms'] = dict(recording.timings_ms)
+    report['timing_ms'].update(timing_summary(latencies_ms(recording)))
+    report['frames'] = {'sent': len(recording.published_s),
+                        'answered': len(recording.answered_s)}
+    report['config'] = {'bag': str(args.bag), 'params': str(args.params),
+                        'param_overrides': list(args.param), 'results_bag': str(bag_path)}
+    print(format_report(report))
+    print(f'frames: {report["frames"]["sent"]} sent, {report["frames"]["answered"]} answered')
+    write_json_atomic(args.json, report)
+    print(f'report written to {args.json}, node outputs to {bag_path}')
+    if args.plots is not None:
+        write_plots(args.plots, frames, recording, models, scores, report['objects'])
+        print(f'plots written to {args.plots}')
+    return 0

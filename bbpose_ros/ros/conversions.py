@@ -1,0 +1,122 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Messages <-> core types: Image, CameraInfo, PoseStamped and MarkerArray.
+
+Poses are x_cam = R x_model + t with t in metres in the image's optical frame; quaternions
+in messages are in ROS order (x, y, z, w).
+"""
+
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
+from sensor_msgs.msg import Image
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from bbpose_ros.core.image_encoding import decode_image, encode_rgb8
+from bbpose_ros.core.image_encoding import intrinsics_from_camera_info
+from bbpose_ros.core.models import BOX_EDGES
+from bbpose_ros.core.plots import object_color
+from bbpose_ros.core.rotations import matrix_to_quat_wxyz, wxyz_to_xyzw
+
+BOX_LINE_WIDTH_M = 0.003
+LABEL_HEIGHT_M = 0.02
+
+
+def stamp_to_ns(stamp):
+    """Nanoseconds of a builtin_interfaces/Time."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def image_to_rgb(image):
+    """(H, W, 3) uint8 RGB array of a sensor_msgs/Image; InputError names a bad field."""
+    return decode_image(image.height, image.width, image.encoding, image.step, image.data)
+
+
+def camera_from_info(info, rectified, width, height):
+    """
+    Make the CameraIntrinsics of a sensor_msgs/CameraInfo for a width x height image.
+
+    Rectified images use P[:3, :3], others K. When the image size differs from the
+    CameraInfo's (a resized stream), the intrinsics are scaled to the image.
+    """
+    camera = intrinsics_from_camera_info(info.k, info.p, info.width or width,
+                                         info.height or height, rectified)
+    if (camera.width, camera.height) != (width, height):
+        camera = camera.scaled(width, height)
+    return camera
+
+
+def rgb_to_image(header, image_rgb):
+    """sensor_msgs/Image (rgb8) of an (H, W, 3) uint8 array."""
+    height, width, encoding, step, data = encode_rgb8(image_rgb)
+    return Image(header=header, height=height, width=width, encoding=encoding,
+                 is_bigendian=0, step=step, data=data.tobytes())
+
+
+def pose_to_message(header, rotation, translation_m):
+    """geometry_msgs/PoseStamped of x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
+    return PoseStamped(header=header, pose=_pose(rotation, translation_m))
+
+
+class MarkerArrayBuilder:
+    """
+    Makes a frame's visualization_msgs/MarkerArray from its PoseEstimates.
+
+    DELETEALL first, then per pose a LINE_LIST of the 12 edges of the object's 3D box
+    (24 points in the model frame, the marker posed at the estimate) and a
+    TEXT_VIEW_FACING label "name score"; ns is the object name, ids count the instances
+    of that object (box 2k, label 2k + 1), the colour is fixed per object. The points and
+    colours of each object are made once, here.
+
+    Args:
+        models: {object name: ObjectModel}.
+
+    """
+
+    def __init__(self, models):
+        self._points = {name: [Point(x=float(x), y=float(y), z=float(z))
+                               for x, y, z in model.box_corners[BOX_EDGES.reshape(-1)]]
+                        for name, model in models.items()}
+        self._colors = {name: _color(model.obj_id) for name, model in models.items()}
+
+    def __call__(self, header, poses):
+        """Return the MarkerArray of a frame's poses, stamped with its header."""
+        markers = [Marker(header=header, action=Marker.DELETEALL)]
+        instance = {}
+        for pose in poses:
+            name = pose.object_name
+            k = instance[name] = instance.get(name, -1) + 1
+            common = {'header': header, 'ns': name, 'action': Marker.ADD,
+                      'pose': _pose(pose.rotation, pose.translation),
+                      'color': self._colors[name], 'lifetime': Duration()}
+            box = Marker(id=2 * k, type=Marker.LINE_LIST, points=self._points[name], **common)
+            box.scale.x = BOX_LINE_WIDTH_M
+            label = Marker(id=2 * k + 1, type=Marker.TEXT_VIEW_FACING,
+                           text=f'{name} {pose.detection.score:.2f}', **common)
+            label.scale.z = LABEL_HEIGHT_M
+            markers += [box, label]
+        return MarkerArray(markers=markers)
+
+
+def _color(obj_id):
+    r, g, b = (c / 255.0 for c in object_color(obj_id))
+    return ColorRGBA(r=r, g=g, b=b, a=1.0)
+
+
+def _pose(rotation, translation_m):
+    x, y, z, w = (float(v) for v in wxyz_to_xyzw(matrix_to_quat_wxyz(rotation)))
+    tx, ty, tz = (float(v) for v in translation_m)
+    return Pose(position=Point(x=tx, y=ty, z=tz), orientation=Quaternion(x=x, y=y, z=z, w=w))

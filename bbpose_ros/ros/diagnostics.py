@@ -1,0 +1,93 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Frame counters and stage latencies of the node, as a diagnostic_msgs/DiagnosticArray.
+
+Latencies are milliseconds: the pipeline's stages (detector, rotation, translation, total)
+and ``node`` (image received -> results published), each as median and p95 over the last
+``window`` frames; values are named ``<stage>_ms_median`` and ``<stage>_ms_p95``.
+"""
+
+from collections import Counter, deque
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from bbpose_ros.core.evaluation import timing_summary
+
+COUNTERS = ('received', 'answered', 'superseded', 'unpaired', 'bad_image', 'bad_camera_info',
+            'failed')
+DROPS = COUNTERS[2:]
+_SUFFIX = '_ms_'
+
+
+class NodeStats:
+    """Thread-safe frame counters and a sliding window of per-frame latencies (ms)."""
+
+    def __init__(self, window=1000):
+        self._lock = threading.Lock()
+        self._counts = Counter()
+        self._timings = deque(maxlen=window)
+        self._dropped_reported = 0
+
+    def count(self, key):
+        """Add one to a counter of COUNTERS."""
+        with self._lock:
+            self._counts[key] += 1
+
+    def add_timings(self, timings_ms):
+        """Record one answered frame's {stage: ms}."""
+        with self._lock:
+            self._timings.append(dict(timings_ms))
+
+    def status(self, name):
+        """Make a DiagnosticStatus, WARN when frames were dropped since the previous one."""
+        with self._lock:
+            counts = {key: self._counts[key] for key in COUNTERS}
+            summary = timing_summary(list(self._timings))
+        dropped = sum(counts[key] for key in DROPS)
+        level, message = DiagnosticStatus.OK, f'{counts["answered"]} frames answered'
+        if dropped > self._dropped_reported:
+            level = DiagnosticStatus.WARN
+            message += f', {dropped - self._dropped_reported} dropped since the last report'
+        self._dropped_reported = dropped
+        values = [KeyValue(key=f'frames_{key}', value=str(counts[key])) for key in COUNTERS]
+        values += [KeyValue(key=f'{stage}{_SUFFIX}{stat}', value=f'{ms:.3f}')
+                   for stage, stats in summary.items() for stat, ms in stats.items()]
+        return DiagnosticStatus(level=level, name=name, message=message,
+                                hardware_id='', values=values)
+
+
+def diagnostics_message(stamp, statuses):
+    """Make a DiagnosticArray of the statuses at a builtin_interfaces/Time."""
+    message = DiagnosticArray(status=list(statuses))
+    message.header.stamp = stamp
+    return message
+
+
+def timings_from_status(status):
+    """{stage: {'median', 'p95'}} ms read back from a status made by NodeStats.status."""
+    timings = {}
+    for item in status.values:
+        stage, found, stat = item.key.rpartition(_SUFFIX)
+        if found:
+            timings.setdefault(stage, {})[stat] = float(item.value)
+    return timings
+
+
+def counts_from_status(status):
+    """{counter: int} read back from a status made by NodeStats.status."""
+    return {item.key[len('frames_'):]: int(item.value) for item in status.values
+            if item.key.startswith('frames_')}

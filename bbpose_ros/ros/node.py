@@ -1,0 +1,253 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose_node``: Image + CameraInfo in; poses, markers, a debug image and diagnostics out.
+
+Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8) and
+``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within ``sync_slop``.
+Publications, stamped with the image's header (stamp and frame_id):
+
+* ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
+  instance found, for each configured object;
+* ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame;
+* ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
+
+The subscription callbacks only decode and pair; a worker thread runs the pipeline on the
+newest pair, so frames arriving while it is busy replace each other instead of queueing.
+"""
+
+from dataclasses import dataclass
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_system_default
+from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import MarkerArray
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.estimators import load_pipeline
+from bbpose_ros.core.models import load_bop_models
+from bbpose_ros.core.plots import draw_estimates
+from bbpose_ros.ros import conversions
+from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
+from bbpose_ros.ros.pairing import LatestSlot, StampPairer
+from bbpose_ros.ros.params import declare_parameters, NODE_NAME
+from bbpose_ros.ros.throttle import KeyedThrottle
+
+DIAGNOSTICS_PERIOD_S = 1.0
+UNPAIRED_TIMEOUT_S = 1.0    # an image waiting longer for its CameraInfo is dropped
+WORKER_JOIN_TIMEOUT_S = 1.0
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A decoded image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt."""
+
+    header: object
+    image_rgb: object
+    received_s: float
+
+
+def build_pipeline(config):
+    """Build the PosePipeline of a NodeConfig: meshes from dataset_dir, learned stages."""
+    try:
+        models = load_bop_models(config.dataset_dir, list(config.objects))
+    except InputError as err:
+        raise InputError(f'parameter objects / dataset_dir: loading the objects from '
+                         f'{config.dataset_dir}: {err}') from err
+    try:
+        return load_pipeline(models, detector_weights=config.detector_weights,
+                             qnet_weights=config.qnet_weights,
+                             score_threshold=config.score_threshold,
+                             max_instances=config.max_instances, device=config.device,
+                             threads=config.torch_threads or None)
+    except InputError as err:
+        raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
+                         f'files): {err}') from err
+
+
+class BBPoseNode(Node):
+    """
+    The pose estimation node; the pipeline is built from its parameters.
+
+    Args:
+        **kwargs: passed to rclpy's Node (e.g. parameter_overrides, context).
+
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self.config = declare_parameters(self)
+        self.pipeline = build_pipeline(self.config)
+        self.stats = NodeStats()
+        self._throttle = KeyedThrottle()
+        self._pairer = StampPairer()
+        self._slot = LatestSlot()
+        self._markers = conversions.MarkerArrayBuilder(self.pipeline.models)
+        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
+                           for name in self.pipeline.models}
+        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
+        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
+                                                      qos_profile_system_default)
+        self.create_subscription(Image, 'image', self._on_image, self.config.qos)
+        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
+                                 self.config.qos)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+        self._worker = threading.Thread(target=self._work, name='bbpose_worker', daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f'serving {", ".join(self.pipeline.models)} on {self._topic("image")} + '
+            f'{self._topic("camera_info")} ({self.config.qos.reliability.name.lower()}, '
+            f'depth {self.config.qos.depth})')
+
+    def destroy_node(self):
+        """Stop the worker (waiting at most WORKER_JOIN_TIMEOUT_S), then the node."""
+        self._slot.close()
+        self._worker.join(WORKER_JOIN_TIMEOUT_S)
+        super().destroy_node()
+
+    def _on_image(self, message):
+        self.stats.count('received')
+        received_s = time.perf_counter()
+        try:
+            frame = Frame(message.header, conversions.image_to_rgb(message), received_s)
+        except InputError as err:
+            self._drop('bad_image', str(err),
+                       f'image dropped (stamp {_stamp_text(message.header)}): {err}')
+            return
+        pair, displaced = self._pairer.add_image(
+            conversions.stamp_to_ns(message.header.stamp), frame, self._sync_slop())
+        if displaced is not None:
+            self._drop_unpaired(displaced, 'a newer image arrived first')
+        if pair is not None:
+            self._hand_off(*pair)
+
+    def _on_camera_info(self, message):
+        pair = self._pairer.add_info(conversions.stamp_to_ns(message.header.stamp), message,
+                                     self._sync_slop())
+        if pair is not None:
+            self._hand_off(*pair)
+
+    def _hand_off(self, frame, info):
+        height, width = frame.image_rgb.shape[:2]
+        try:
+            camera = conversions.camera_from_info(
+                info, self.get_parameter('rectified').value, width, height)
+        except InputError as err:
+            self._drop('bad_camera_info', str(err),
+                       f'image dropped (stamp {_stamp_text(frame.header)}): {err}')
+            return
+        if self._slot.put((frame, camera)) is not None:
+            self.stats.count('superseded')
+
+    def _on_timer(self):
+        waiting = self._pairer.waiting
+        if waiting is not None and time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
+            self._drop_unpaired(self._pairer.take_waiting(),
+                                f'none came within {UNPAIRED_TIMEOUT_S} s')
+        status = self.stats.status(f'{self.get_name()}: pose pipeline')
+        self._diagnostics_pub.publish(
+            diagnostics_message(self.get_clock().now().to_msg(), [status]))
+
+    def _work(self):
+        """Worker thread: estimate and publish the newest pair until the slot closes."""
+        while (item := self._slot.take()) is not None:
+            frame, camera = item
+            try:
+                result = self.pipeline.estimate(frame.image_rgb, camera)
+                self._publish(frame, camera, result.poses)
+            except Exception as err:  # noqa: B902 - keep serving whatever one frame does
+                self._drop('failed', type(err).__name__,
+                           f'estimation failed (stamp {_stamp_text(frame.header)}): '
+                           f'{type(err).__name__}: {err}')
+                continue
+            self.stats.add_timings(
+                dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
+            self.stats.count('answered')
+
+    def _publish(self, frame, camera, poses):
+        """Poses first, then the markers that mark the frame answered, then the debug image."""
+        for pose in poses:
+            self._pose_pubs[pose.object_name].publish(
+                conversions.pose_to_message(frame.header, pose.rotation, pose.translation))
+        self._markers_pub.publish(self._markers(frame.header, poses))
+        if self.get_parameter('publish_debug_image').value and \
+                self._debug_pub.get_subscription_count() > 0:
+            self._debug_pub.publish(conversions.rgb_to_image(
+                frame.header, draw_estimates(frame.image_rgb, camera, self.pipeline.models,
+                                             poses)))
+
+    def _drop_unpaired(self, frame, reason):
+        offset_s = self._pairer.nearest_offset_s(conversions.stamp_to_ns(frame.header.stamp))
+        if offset_s is None:
+            key, problem = 'none', f'no {self._topic("camera_info")} received yet'
+        else:
+            key, problem = 'offset', (
+                f'no {self._topic("camera_info")} with a stamp within sync_slop = '
+                f'{self._sync_slop()} s; the nearest differs by {offset_s:.3f} s')
+        if self._count_drop('unpaired', key):
+            self.get_logger().warning(
+                f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
+
+    def _drop(self, counter, key, text):
+        """Count a dropped frame and log ``text`` as an error, throttled per ``key``."""
+        if self._count_drop(counter, key):
+            self.get_logger().error(text)
+
+    def _count_drop(self, counter, key):
+        """Count a dropped frame; returns whether its message may be logged now."""
+        self.stats.count(counter)
+        return self._throttle.allow(f'{counter}:{key}')
+
+    def _sync_slop(self):
+        return self.get_parameter('sync_slop').value
+
+    def _topic(self, name):
+        return self.resolve_topic_name(name)
+
+
+def _stamp_text(header):
+    return f'{header.stamp.sec}.{header.stamp.nanosec:09d}'
+
+
+def main(args=None):
+    """Run the node until SIGINT / SIGTERM; returns 0, or 1 when it cannot start."""
+    rclpy.init(args=args)
+    try:
+        node = BBPoseNode()
+    except (InputError, ParameterException) as err:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,244 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Replay a bag through a running ``bbpose_node`` and record what it answers.
+
+Frames are played in lockstep: each image (with the messages that follow it in the bag) is
+published once the node has answered the previous one, so a node slower than the bag's rate
+still answers every frame. A frame counts as answered when its MarkerArray arrives (the node
+publishes one per processed frame, after the frame's poses).
+"""
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Writer
+from sensor_msgs.msg import Image
+from visualization_msgs.msg import MarkerArray
+
+from bbpose_ros.bags import topics
+from bbpose_ros.bags.writer import STORAGE
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
+from bbpose_ros.ros.params import NODE_NAME, package_config_file
+
+FASTDDS_PROFILE = package_config_file('fastdds_large_images.xml')
+FASTDDS_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+STOP_TIMEOUT_S = 5.0
+DIAGNOSTICS_TIMEOUT_S = 3.0   # the node publishes them at 1 Hz
+POLL_S = 0.02
+
+
+def use_large_image_profile(environ=os.environ):
+    """Select the shipped Fast DDS profile for large images unless one is already set."""
+    if FASTDDS_PROFILE.is_file() and not environ.get(FASTDDS_ENV):
+        environ[FASTDDS_ENV] = str(FASTDDS_PROFILE)
+
+
+class NodeProcess:
+    """
+    ``bbpose_node`` as a child process, with its inputs remapped to the bag's topics.
+
+    Args:
+        params_file: ROS 2 parameters file.
+        overrides: extra ``name:=value`` parameters.
+        image_topic, camera_info_topic: topics the node subscribes to.
+        stderr: where its log goes (subprocess.Popen's stderr; None: this process's).
+
+    """
+
+    def __init__(self, params_file, overrides=(), image_topic=topics.IMAGE_TOPIC,
+                 camera_info_topic=topics.CAMERA_INFO_TOPIC, stderr=None):
+        command = [sys.executable, '-m', 'bbpose_ros.ros.node', '--ros-args',
+                   '--params-file', str(params_file)]
+        for override in overrides:
+            command += ['-p', override]
+        command += ['-r', f'image:={image_topic}', '-r', f'camera_info:={camera_info_topic}']
+        self.process = subprocess.Popen(command, stderr=stderr)
+
+    def check_alive(self):
+        """Raise InputError when the node has exited (its log is on stderr)."""
+        code = self.process.poll()
+        if code is not None:
+            raise InputError(f'{NODE_NAME} exited with code {code}; see its log above')
+
+    def stop(self):
+        """SIGINT, then SIGKILL after STOP_TIMEOUT_S; returns the exit code."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+        return self.process.wait()
+
+
+@dataclass
+class Recording:
+    """
+    What the node answered, by image stamp (ns); times are time.perf_counter() seconds.
+
+    Attributes:
+        published_s: {stamp: when the image was published}.
+        answered_s: {stamp: when its MarkerArray arrived}.
+        poses: {stamp: [(object name, rotation (3, 3), translation (3,) metres)]}.
+        pose_received_s: {stamp: when its last PoseStamped arrived}.
+        timings_ms: the node's stage latencies from its last diagnostics.
+        counts: the node's frame counters from its last diagnostics.
+        messages: [(topic, type name, receive time ns, raw CDR)] for the results bag.
+
+    """
+
+    published_s: dict = field(default_factory=dict)
+    answered_s: dict = field(default_factory=dict)
+    poses: dict = field(default_factory=dict)
+    pose_received_s: dict = field(default_factory=dict)
+    timings_ms: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+    messages: list = field(default_factory=list)
+
+
+class Recorder:
+    """
+    Subscribes to the node's outputs and fills a Recording.
+
+    Args:
+        node: the rclpy Node that owns the subscriptions.
+        objects: object names whose ``/<node>/<object>/pose`` topics are recorded.
+
+    """
+
+    def __init__(self, node, objects):
+        self.node = node
+        self.recording = Recording()
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(node)
+        self.markers_topic = f'/{NODE_NAME}/markers'
+        self.topics = {f'/{NODE_NAME}/{name}/pose': (PoseStamped, self._on_pose, name)
+                       for name in objects}
+        self.topics[self.markers_topic] = (MarkerArray, self._on_markers, None)
+        self.topics['/diagnostics'] = (DiagnosticArray, self._on_diagnostics, None)
+        for topic, (cls, handler, name) in self.topics.items():
+            node.create_subscription(cls, topic, self._callback(topic, cls, handler, name), 100,
+                                     raw=True)
+
+    def spin_until(self, done, timeout_s, process=None):
+        """Spin until ``done()`` is true; returns False on timeout or raises if process died."""
+        deadline = time.monotonic() + timeout_s
+        while not done():
+            if time.monotonic() > deadline:
+                return False
+            if process is not None:
+                process.check_alive()
+            self.executor.spin_once(timeout_sec=POLL_S)
+        return True
+
+    def connected(self, publishers):
+        """Return True when ``publishers`` all have subscribers and every output a publisher."""
+        return all(p.get_subscription_count() > 0 for p in publishers) and \
+            all(self.node.count_publishers(topic) > 0 for topic in self.topics
+                if topic != '/diagnostics')
+
+    def _callback(self, topic, cls, handler, name):
+        msgtype = f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+
+        def callback(raw):
+            self.recording.messages.append((topic, msgtype, time.time_ns(), raw))
+            handler(deserialize_message(raw, cls), name)
+        return callback
+
+    def _on_pose(self, message, name):
+        stamp = stamp_to_ns(message.header.stamp)
+        rotation, translation = topics.pose_from_message(message)
+        self.recording.poses.setdefault(stamp, []).append((name, rotation, translation))
+        self.recording.pose_received_s[stamp] = time.perf_counter()
+
+    def _on_markers(self, message, _):
+        if message.markers:
+            stamp = stamp_to_ns(message.markers[0].header.stamp)
+            self.recording.answered_s.setdefault(stamp, time.perf_counter())
+
+    def _on_diagnostics(self, message, _):
+        for status in message.status:
+            if status.name.startswith(f'{NODE_NAME}:'):
+                self.recording.timings_ms = timings_from_status(status)
+                self.recording.counts = counts_from_status(status)
+
+
+def replay_lockstep(player, recorder, process, image_topic=topics.IMAGE_TOPIC,
+                    start_timeout_s=120.0, answer_timeout_s=30.0, progress=None):
+    """
+    Play every message of the bag, each image after the node answered the previous one.
+
+    Waits up to ``start_timeout_s`` for the node to connect and ``answer_timeout_s`` for
+    each answer (a frame left unanswered is counted, not retried); ``progress`` is called
+    with the number of images sent. Returns the Recording.
+    """
+    recording = recorder.recording
+    inputs = [publisher for topic, publisher in player.publishers.items()
+              if topic in (image_topic, topics.CAMERA_INFO_TOPIC)]
+    if not recorder.spin_until(lambda: recorder.connected(inputs), start_timeout_s, process):
+        raise InputError(f'{NODE_NAME} did not connect within {start_timeout_s} s')
+    previous = None
+    for topic, _, raw in player.messages():
+        if topic == image_topic:
+            _wait_answer(recorder, previous, answer_timeout_s, process)
+            previous = stamp_to_ns(deserialize_message(raw, Image).header.stamp)
+            recording.published_s[previous] = time.perf_counter()
+            if progress is not None:
+                progress(len(recording.published_s))
+        player.publish(topic, raw)
+    _wait_answer(recorder, previous, answer_timeout_s, process)
+    answered = len(recording.answered_s)
+    recorder.spin_until(lambda: recording.counts.get('answered', -1) >= answered,
+                        DIAGNOSTICS_TIMEOUT_S, process)
+    return recording
+
+
+def _wait_answer(recorder, stamp, timeout_s, process):
+    if stamp is not None:
+        recorder.spin_until(lambda: stamp in recorder.recording.answered_s, timeout_s, process)
+
+
+def write_results_bag(path, messages, storage='mcap'):
+    """
+    Write recorded (topic, type, time ns, raw CDR) messages as a rosbag2 at ``path``.
+
+    An existing bag at ``path`` (a folder with metadata.yaml) is replaced; any other
+    existing path is an InputError.
+    """
+    path = Path(path)
+    if path.exists():
+        if not (path / 'metadata.yaml').is_file():
+            raise InputError(f'{path} exists and is not a bag; not replacing it')
+        shutil.rmtree(path)
+    with Writer(path, version=9, storage_plugin=STORAGE[storage]) as writer:
+        connections = {}
+        for topic, msgtype, time_ns, raw in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype,
+                                                           typestore=topics.TYPESTORE)
+            writer.write(connections[topic], time_ns, raw)

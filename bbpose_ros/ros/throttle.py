@@ -1,0 +1,51 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Log throttling per kind of problem.
+
+rclpy's ``throttle_duration_sec`` throttles per call site, so a second, different bad input
+arriving soon after a first one would go unreported. Here each key (e.g. the field that
+was wrong) has its own period: a repeated problem is logged once per period, a new one at
+once.
+"""
+
+import threading
+import time
+
+
+class KeyedThrottle:
+    """
+    Decides whether a message of a given key may be logged now.
+
+    Args:
+        period_s: least time between two messages of the same key, seconds.
+        clock: monotonic clock in seconds (replaceable in tests).
+
+    """
+
+    def __init__(self, period_s=5.0, clock=time.monotonic):
+        self.period_s = period_s
+        self._clock = clock
+        self._last = {}
+        self._lock = threading.Lock()
+
+    def allow(self, key):
+        """Return True (and record it) when no ``key`` message was allowed within the period."""
+        now = self._clock()
+        with self._lock:
+            if now - self._last.get(key, -float('inf')) < self.period_s:
+                return False
+            self._last[key] = now
+            return True

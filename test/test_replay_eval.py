@@ -1,0 +1,66 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""``bbpose replay-eval``: every frame answered, scored like ``bbpose eval``, files written."""
+
+import json
+import math
+import subprocess
+import sys
+
+from rosbags.rosbag2 import Reader
+from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_params
+
+from bbpose_ros.bags.writer import write_bop_bag
+from bbpose_ros.core.estimators import load_pipeline
+from bbpose_ros.core.evaluation import evaluate, POSE_KEYS
+
+FRAMES = 3
+
+
+def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo_models,
+                                                              tmp_path):
+    use_private_domain(offset=3)
+    weights = weight_files(tmp_path)
+    frames = lmo.frames()[:FRAMES]
+    write_bop_bag(frames, tmp_path / 'bag', start_stamp_ns=10 ** 9, progress=False)
+    params = write_params(tmp_path / 'params.yaml', lmo_root, weights)
+    out = tmp_path / 'out' / 'report.json'
+    result = subprocess.run(
+        [sys.executable, '-m', 'bbpose_ros.cli.main', 'replay-eval', '--bag', tmp_path / 'bag',
+         '--json', out, '--plots', tmp_path / 'plots', '--params', params],
+        capture_output=True, text=True, timeout=300, cwd=REPO_ROOT)
+    assert result.returncode == 0, result.stderr
+    assert 'mean' in result.stdout and f'{FRAMES} sent, {FRAMES} answered' in result.stdout
+
+    report = json.loads(out.read_text())
+    assert report['frames'] == {'sent': FRAMES, 'answered': FRAMES}
+    assert set(report['objects']) == set(lmo_models)
+    for values in list(report['objects'].values()) + [report['mean']]:
+        assert set(POSE_KEYS) <= set(values)
+    assert {'end_to_end', 'detector', 'rotation', 'total'} <= set(report['timing_ms'])
+    assert report['timing_ms']['end_to_end']['median'] > 0
+
+    offline = evaluate(frames, load_pipeline(lmo_models, *weights, score_threshold=0.0),
+                       boxes='detector', rotation='estimator', progress=False)
+    for name, values in offline['objects'].items():
+        for key in ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px'):
+            mine, theirs = report['objects'][name][key], values[key]
+            assert mine == theirs or (math.isnan(theirs) and mine is None), (name, key)
+
+    with Reader(out.parent / 'report_results_bag') as bag:
+        recorded = {c.topic for c in bag.connections}
+    assert {'/bbpose_node/markers', '/diagnostics'} <= recorded
+    assert {p.name for p in (tmp_path / 'plots').iterdir()} >= {
+        'recall_curves.png', 'objects.png', 'overlay_0000.png'}

@@ -1,0 +1,187 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The ROS adapter's parts without a graph: pairing, throttling, conversions, parameters."""
+
+import threading
+
+from diagnostic_msgs.msg import DiagnosticStatus
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.pipeline import Detection, PoseEstimate
+from bbpose_ros.core.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.ros import conversions
+from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
+from bbpose_ros.ros.pairing import LatestSlot, StampPairer
+from bbpose_ros.ros.params import declare_parameters, read_params_file
+from bbpose_ros.ros.throttle import KeyedThrottle
+
+SECOND = 1_000_000_000
+
+
+def test_pairs_by_stamp_within_slop_in_either_order():
+    pairer = StampPairer()
+    assert pairer.add_image(5 * SECOND, 'image5', 0.01) == (None, None)
+    assert pairer.add_info(7 * SECOND, 'info7', 0.01) is None        # other stamp: no pair
+    assert pairer.add_info(5 * SECOND + 5_000_000, 'info5', 0.01) == ('image5', 'info5')
+    assert pairer.add_image(7 * SECOND, 'image7', 0.01) == (('image7', 'info7'), None)
+    assert pairer.waiting is None
+
+
+def test_a_newer_unpaired_image_displaces_the_waiting_one():
+    pairer = StampPairer()
+    pairer.add_image(1 * SECOND, 'old', 0.01)
+    assert pairer.add_image(2 * SECOND, 'new', 0.01) == (None, 'old')
+    assert pairer.take_waiting() == 'new' and pairer.waiting is None
+
+
+def test_a_paired_newer_image_displaces_the_waiting_one():
+    pairer = StampPairer()
+    pairer.add_info(2 * SECOND, 'info2', 0.01)
+    pairer.add_image(1 * SECOND, 'image1', 0.01)
+    assert pairer.add_image(2 * SECOND, 'image2', 0.01) == (('image2', 'info2'), 'image1')
+    assert pairer.add_info(1 * SECOND, 'info1', 0.01) is None     # image1 stays dropped
+
+
+def test_negative_slop_takes_the_latest_info():
+    pairer = StampPairer()
+    pairer.add_info(1 * SECOND, 'first', -1.0)
+    pairer.add_info(2 * SECOND, 'latest', -1.0)
+    assert pairer.add_image(50 * SECOND, 'image', -1.0) == (('image', 'latest'), None)
+
+
+def test_latest_slot_keeps_only_the_newest_item():
+    slot = LatestSlot()
+    assert slot.put(1) is None
+    assert slot.put(2) == 1
+    assert slot.take() == 2
+    taken = []
+    worker = threading.Thread(target=lambda: taken.append(slot.take()))
+    worker.start()
+    slot.close()
+    worker.join(5.0)
+    assert taken == [None]
+
+
+def test_throttle_is_per_key():
+    now = [0.0]
+    throttle = KeyedThrottle(period_s=5.0, clock=lambda: now[0])
+    assert throttle.allow('encoding') and throttle.allow('step')
+    assert not throttle.allow('encoding')
+    now[0] = 5.0
+    assert throttle.allow('encoding')
+
+
+def test_markers_structure(lmo_models):
+    header = Header(frame_id='cam')
+    header.stamp.sec, header.stamp.nanosec = 12, 345
+    rotation = quat_wxyz_to_matrix([0.9, 0.1, -0.3, 0.2])
+    poses = [PoseEstimate(Detection(name, 0.75, np.zeros(4)), rotation, np.array([0, 0, 1.0]))
+             for name in ('ape', 'ape', 'glue')]
+    markers = conversions.MarkerArrayBuilder(lmo_models)(header, poses).markers
+    assert markers[0].action == Marker.DELETEALL
+    boxes = [m for m in markers if m.type == Marker.LINE_LIST]
+    labels = [m for m in markers if m.type == Marker.TEXT_VIEW_FACING]
+    assert [(m.ns, m.id) for m in boxes] == [('ape', 0), ('ape', 2), ('glue', 0)]
+    assert [(m.ns, m.id) for m in labels] == [('ape', 1), ('ape', 3), ('glue', 1)]
+    assert all(len(m.points) == 24 for m in boxes)
+    assert labels[0].text == 'ape 0.75'
+    assert boxes[0].color == boxes[1].color != boxes[2].color
+    assert all(m.header.frame_id == 'cam' and m.header.stamp.nanosec == 345 for m in markers)
+    # points are the box corners in the model frame; the marker pose is the estimate
+    corners = lmo_models['ape'].box_corners
+    points = np.array([[p.x, p.y, p.z] for p in boxes[0].points])
+    assert np.allclose(np.unique(points, axis=0), np.unique(corners, axis=0))
+
+
+def test_pose_message_uses_ros_quaternion_order():
+    rotation = quat_wxyz_to_matrix([0.5, 0.5, -0.5, 0.5])
+    message = conversions.pose_to_message(Header(), rotation, [0.1, -0.2, 0.9])
+    q = message.pose.orientation
+    assert np.allclose(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])), rotation)
+    assert (message.pose.position.x, message.pose.position.z) == (0.1, 0.9)
+
+
+def test_camera_info_k_or_p_and_bad_k():
+    info = CameraInfo(width=640, height=480)
+    info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
+    info.p = [400.0, 0.0, 300.0, 0.0, 0.0, 400.0, 200.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert conversions.camera_from_info(info, False, 640, 480).fx == 500.0
+    assert conversions.camera_from_info(info, True, 640, 480).fx == 400.0
+    assert conversions.camera_from_info(info, False, 320, 240).fx == 250.0
+    info.k = [0.0] * 9
+    with pytest.raises(InputError, match='field k'):
+        conversions.camera_from_info(info, False, 640, 480)
+
+
+def test_diagnostics_round_trip():
+    stats = NodeStats()
+    stats.count('received')
+    stats.count('bad_image')
+    stats.add_timings({'detector': 4.0, 'total': 6.0})
+    status = stats.status('bbpose_node: pose pipeline')
+    assert status.level == DiagnosticStatus.WARN
+    assert counts_from_status(status)['bad_image'] == 1
+    assert timings_from_status(status)['detector'] == {'median': 4.0, 'p95': 4.0}
+    assert stats.status('again').level == DiagnosticStatus.OK
+
+
+def test_params_file_blocks_and_overrides(tmp_path):
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    max_instances: 2\n    device: cpu\n'
+                    'bbpose_node:\n  ros__parameters:\n    max_instances: 3\n')
+    values = read_params_file(path, ['objects:=[ape, glue]'])
+    assert values['max_instances'] == 3 and values['objects'] == ['ape', 'glue']
+    assert values['sync_slop'] == 0.01       # declared default
+    with pytest.raises(InputError, match='not found'):
+        read_params_file(tmp_path / 'missing.yaml')
+
+
+@pytest.fixture
+def ros_context():
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+def declare(context, **values):
+    """Declare the node's parameters on a plain node with overrides; returns NodeConfig."""
+    node = rclpy.create_node('params_under_test', context=context, parameter_overrides=[
+        Parameter(name, value=value) for name, value in values.items()])
+    try:
+        return declare_parameters(node)
+    finally:
+        node.destroy_node()
+
+
+def test_declared_parameters_validate_and_set_qos(ros_context, lmo_root):
+    config = declare(ros_context, dataset_dir=str(lmo_root), qos_reliability='best_effort',
+                     qos_depth=3, objects=['ape'])
+    assert config.qos.reliability == QoSReliabilityPolicy.BEST_EFFORT
+    assert config.qos.depth == 3 and config.objects == ('ape',)
+    assert config.detector_weights is None          # the shipped file
+    with pytest.raises(InputError, match='qos_reliability'):
+        declare(ros_context, dataset_dir=str(lmo_root), qos_reliability='sometimes')
+    with pytest.raises(InputError, match='device'):
+        declare(ros_context, dataset_dir=str(lmo_root), device='tpu')
