@@ -40,6 +40,8 @@ import numpy as np
 
 # Order of the four sides in boxes, touching-point indices and side weights.
 SIDES = ('left', 'top', 'right', 'bottom')
+_SIDE_INDEX = np.arange(4)
+_SIDE_COORD = np.array([0, 1, 0, 1])     # the coordinate each side bounds: x, y, x, y
 
 
 @dataclass(frozen=True)
@@ -76,18 +78,31 @@ def _extreme_indices(u, v):
                     axis=1)
 
 
-def _solve(rotated, touching, boxes_norm, side_weights):
-    """Weighted least squares of the 4x3 systems for (N, M, 3) rotated points."""
-    n = len(rotated)
-    points = rotated[np.arange(n)[:, None], touching]            # (N, 4, 3) in side order
-    coord = np.array([0, 1, 0, 1])                                 # x for left/right, y else
-    a = np.zeros((n, 4, 3))
-    a[:, np.arange(4), coord] = 1.0
-    a[:, :, 2] = -boxes_norm
-    b = boxes_norm * points[:, :, 2] - points[:, np.arange(4), coord]
-    aw = a * side_weights[:, :, None]
-    return np.linalg.solve(np.swapaxes(aw, 1, 2) @ a,
-                           (np.swapaxes(aw, 1, 2) @ b[:, :, None]))[:, :, 0]
+def _touching_points(rotated, rows, touching):
+    """(K, 4, 3) touching points, in side order, of the objects ``rows`` (K,) of (N, 3, M)."""
+    return rotated[rows[:, None], :, touching]
+
+
+class _SideSystems:
+    """
+    The weighted 4x3 systems A t = b of N objects, solved by the normal equations.
+
+    A and the side weights W depend on the boxes only, so A^T W and A^T W A are made once;
+    each re-selection of touching points only changes b.
+    """
+
+    def __init__(self, boxes_norm, side_weights):
+        a = np.zeros((len(boxes_norm), 4, 3))
+        a[:, _SIDE_INDEX, _SIDE_COORD] = 1.0
+        a[:, :, 2] = -boxes_norm
+        self.boxes_norm = boxes_norm                                    # (N, 4)
+        self.aw_t = np.swapaxes(a * side_weights[:, :, None], 1, 2)    # (N, 3, 4): A^T W
+        self.normal = self.aw_t @ a                                     # (N, 3, 3): A^T W A
+
+    def solve(self, rows, points):
+        """(K, 3) t of the objects ``rows`` (K,) from their (K, 4, 3) touching points R X."""
+        b = self.boxes_norm[rows] * points[:, :, 2] - points[:, _SIDE_INDEX, _SIDE_COORD]
+        return np.linalg.solve(self.normal[rows], self.aw_t[rows] @ b[:, :, None])[:, :, 0]
 
 
 def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights=None,
@@ -117,23 +132,30 @@ def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights
     n = len(rotations)
     weights = np.ones((n, 4)) if side_weights is None else np.asarray(side_weights, float)
     boxes_norm = (boxes_uv - [cx, cy, cx, cy]) / [fx, fy, fx, fy]
-    rotated = points @ np.swapaxes(rotations, 1, 2)                # (N, M, 3): R X
-    touching = _extreme_indices(rotated[:, :, 0], rotated[:, :, 1])
-    translations = _solve(rotated, touching, boxes_norm, weights)
+    # (N, 3, M): R X with each coordinate contiguous over the points, so the per-iteration
+    # passes below read whole rows (about 2x faster than (N, M, 3) for 8 objects).
+    rotated = rotations @ np.swapaxes(points, 1, 2)
+    systems = _SideSystems(boxes_norm, weights)
+    touching = _extreme_indices(rotated[:, 0], rotated[:, 1])
+    every = np.arange(n)
+    translations = systems.solve(every, _touching_points(rotated, every, touching))
     iterations = np.zeros(n, dtype=int)
     active = np.ones(n, dtype=bool)
     for _ in range(max_iterations):
-        cam = rotated[active] + translations[active, None, :]
-        in_front = np.all(cam[:, :, 2] > 0.0, axis=1)
-        z = np.where(cam[:, :, 2] > 0.0, cam[:, :, 2], 1.0)
-        chosen = _extreme_indices(cam[:, :, 0] / z, cam[:, :, 1] / z)
-        changed = in_front & np.any(chosen != touching[active], axis=1)
         idx = np.flatnonzero(active)
+        part = rotated if len(idx) == n else rotated[idx]     # no copy while all are active
+        t = translations[idx]
+        z = part[:, 2] + t[:, 2:]
+        in_front = z.min(axis=1) > 0.0
+        if not in_front.all():
+            z = np.where(z > 0.0, z, 1.0)
+        chosen = _extreme_indices((part[:, 0] + t[:, :1]) / z, (part[:, 1] + t[:, 1:2]) / z)
+        changed = in_front & np.any(chosen != touching[idx], axis=1)
         active[idx[~changed]] = False
         if not changed.any():
             break
         idx = idx[changed]
         touching[idx] = chosen[changed]
-        translations[idx] = _solve(rotated[idx], touching[idx], boxes_norm[idx], weights[idx])
+        translations[idx] = systems.solve(idx, _touching_points(rotated, idx, touching[idx]))
         iterations[idx] += 1
     return TranslationSolution(translations, touching, iterations, ~active)

@@ -21,6 +21,7 @@ in messages are in ROS order (x, y, z, w).
 
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
+import numpy as np
 from sensor_msgs.msg import Image
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -68,7 +69,33 @@ def rgb_to_image(header, image_rgb):
 
 def pose_to_message(header, rotation, translation_m):
     """geometry_msgs/PoseStamped of x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
-    return PoseStamped(header=header, pose=_pose(rotation, translation_m))
+    return PoseStamped(header=header, pose=_pose(_quats_xyzw(rotation), translation_m))
+
+
+def poses_to_messages(poses):
+    """
+    Make the geometry_msgs/Pose of each PoseEstimate of a frame (metres, ROS (x, y, z, w)).
+
+    All rotations go to quaternions in one batched call: one call costs ~60 us, eight
+    together ~80 us, and the node needs each pose twice (PoseStamped and marker).
+    """
+    if not poses:
+        return []
+    quats = _quats_xyzw(np.stack([pose.rotation for pose in poses]))
+    return [_pose(q_xyzw, pose.translation) for q_xyzw, pose in zip(quats, poses)]
+
+
+def frame_messages(header, poses, markers):
+    """
+    Make a frame's outputs: [(object name, PoseStamped)] and the MarkerArray of ``markers``.
+
+    ``markers`` is a MarkerArrayBuilder; each pose's Pose message is made once and shared by
+    its PoseStamped and its markers. Everything is stamped with ``header``.
+    """
+    pose_msgs = poses_to_messages(poses)
+    stamped = [(pose.object_name, PoseStamped(header=header, pose=pose_msg))
+               for pose, pose_msg in zip(poses, pose_msgs)]
+    return stamped, markers(header, poses, pose_msgs)
 
 
 class MarkerArrayBuilder:
@@ -92,15 +119,20 @@ class MarkerArrayBuilder:
                         for name, model in models.items()}
         self._colors = {name: _color(model.obj_id) for name, model in models.items()}
 
-    def __call__(self, header, poses):
-        """Return the MarkerArray of a frame's poses, stamped with its header."""
+    def __call__(self, header, poses, pose_msgs=None):
+        """
+        Return the MarkerArray of a frame's poses, stamped with its header.
+
+        ``pose_msgs``: the poses' geometry_msgs/Pose if already made (``poses_to_messages``).
+        """
         markers = [Marker(header=header, action=Marker.DELETEALL)]
         instance = {}
-        for pose in poses:
+        if pose_msgs is None:
+            pose_msgs = poses_to_messages(poses)
+        for pose, pose_msg in zip(poses, pose_msgs):
             name = pose.object_name
             k = instance[name] = instance.get(name, -1) + 1
-            common = {'header': header, 'ns': name, 'action': Marker.ADD,
-                      'pose': _pose(pose.rotation, pose.translation),
+            common = {'header': header, 'ns': name, 'action': Marker.ADD, 'pose': pose_msg,
                       'color': self._colors[name], 'lifetime': Duration()}
             box = Marker(id=2 * k, type=Marker.LINE_LIST, points=self._points[name], **common)
             box.scale.x = BOX_LINE_WIDTH_M
@@ -116,7 +148,12 @@ def _color(obj_id):
     return ColorRGBA(r=r, g=g, b=b, a=1.0)
 
 
-def _pose(rotation, translation_m):
-    x, y, z, w = (float(v) for v in wxyz_to_xyzw(matrix_to_quat_wxyz(rotation)))
+def _quats_xyzw(rotations):
+    """(..., 4) ROS-order quaternions of (..., 3, 3) rotation matrices."""
+    return wxyz_to_xyzw(matrix_to_quat_wxyz(rotations))
+
+
+def _pose(q_xyzw, translation_m):
+    x, y, z, w = (float(v) for v in q_xyzw)
     tx, ty, tz = (float(v) for v in translation_m)
     return Pose(position=Point(x=tx, y=ty, z=tz), orientation=Quaternion(x=x, y=y, z=z, w=w))

@@ -187,10 +187,10 @@ class BBPoseNode(Node):
 
     def _publish(self, frame, camera, poses):
         """Poses first, then the markers that mark the frame answered, then the debug image."""
-        for pose in poses:
-            self._pose_pubs[pose.object_name].publish(
-                conversions.pose_to_message(frame.header, pose.rotation, pose.translation))
-        self._markers_pub.publish(self._markers(frame.header, poses))
+        stamped, markers = conversions.frame_messages(frame.header, poses, self._markers)
+        for name, message in stamped:
+            self._pose_pubs[name].publish(message)
+        self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(

@@ -1,0 +1,186 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose bench``: the speed of the pipeline stage by stage, or through the ROS graph.
+
+Both modes take the node's parameters (``--params``, default config/bbpose.yaml, and
+``--param``); ``--dataset``, ``--objects``, ``--threads`` and ``--score-threshold`` become
+overrides of ``dataset_dir``, ``objects``, ``torch_threads`` and ``score_threshold``, so the
+stage benchmark builds the very pipeline the node would, and ``--graph`` starts the node
+with them.
+"""
+
+from pathlib import Path
+
+from std_msgs.msg import Header
+
+from bbpose_ros.bags import topics
+from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
+from bbpose_ros.cli.common import write_json_atomic
+from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
+from bbpose_ros.core.benchmark import benchmark_frames, STAGES, summarize_graph
+from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.estimators import load_pipeline
+from bbpose_ros.core.models import load_bop_models
+from bbpose_ros.ros import conversions
+from bbpose_ros.ros.benchmark_graph import camera_messages, run_graph
+from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
+
+
+def add_parser(subparsers):
+    """Register the ``bench`` subcommand."""
+    parser = subparsers.add_parser(
+        'bench', help='time the pipeline stages, or the node through the ROS graph',
+        description='Without --graph: run the pipeline on BOP frames after a warm-up and '
+                    'report per stage (image conversion, detector, crop + Q-Net, Bounding Box '
+                    'Equation, message building) and in total the median, p95 and max in ms, '
+                    "fps, peak RSS and torch threads; once with the detector's detections and "
+                    'once ("all_objects") with the ground-truth box of every object of the '
+                    'frame. With --graph: start bbpose_node, publish the frames at --rate for '
+                    '--duration seconds over DDS (shipped Fast DDS profile) and report the '
+                    'publish -> answer latency, frames answered / dropped, node CPU and RSS.')
+    add_dataset_argument(parser)
+    add_objects_argument(parser)
+    parser.add_argument('--frames', type=int, default=None,
+                        help='use the first N frames of the dataset (default: all)')
+    parser.add_argument('--warmup', type=int, default=10,
+                        help='untimed frames before timing (default %(default)s)')
+    parser.add_argument('--threads', type=int, default=None,
+                        help='torch threads (node parameter torch_threads; 0: one per core; '
+                             'default: the parameters file)')
+    parser.add_argument('--score-threshold', type=float, default=None,
+                        help='detector score threshold (default: the parameters file); 0 '
+                             'makes the detector report every object')
+    parser.add_argument('--graph', action='store_true',
+                        help='measure through the ROS graph with a running node')
+    parser.add_argument('--rate', type=float, default=30.0,
+                        help='--graph: frames per second (default %(default)s)')
+    parser.add_argument('--duration', type=float, default=60.0,
+                        help='--graph: seconds of publishing (default %(default)s)')
+    parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
+                        help='parameters file of the node (default %(default)s)')
+    parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='override one node parameter (repeatable)')
+    parser.add_argument('--json', type=Path, default=None, help='write the report here')
+    parser.set_defaults(func=run)
+
+
+def node_overrides(args):
+    """Make the ``name:=value`` parameter overrides of the options, then ``--param``."""
+    overrides = [f'dataset_dir:={args.dataset.resolve()}']
+    if args.objects:
+        overrides.append(f'objects:=[{",".join(args.objects)}]')
+    if args.threads is not None:
+        overrides.append(f'torch_threads:={args.threads}')
+    if args.score_threshold is not None:
+        overrides.append(f'score_threshold:={float(args.score_threshold)}')
+    return overrides + list(args.param)
+
+
+def bench_frames(frames, values, warmup):
+    """Time the stages on ``frames`` with the pipeline of node parameter ``values``."""
+    models = load_bop_models(resolve_dataset_dir(values['dataset_dir']), values['objects'])
+    pipeline = load_pipeline(
+        models, detector_weights=values['detector_weights'] or None,
+        qnet_weights=values['qnet_weights'] or None, score_threshold=values['score_threshold'],
+        max_instances=values['max_instances'], device=values['device'],
+        threads=values['torch_threads'] or None)
+    header = Header(frame_id=topics.DEFAULT_FRAME_ID)
+    markers = conversions.MarkerArrayBuilder(models)
+    return benchmark_frames(
+        frames, pipeline, lambda image: conversions.rgb_to_image(header, image),
+        conversions.image_to_rgb,
+        lambda poses: conversions.frame_messages(header, poses, markers), warmup=warmup)
+
+
+def bench_graph(args, frames, values, overrides):
+    """Publish ``frames`` at ``args.rate`` into a node started with ``overrides``."""
+    if args.rate <= 0 or args.duration <= 0:
+        raise InputError('--rate and --duration must be positive')
+    graph = run_graph(camera_messages(frames), list(values['objects']), args.params, overrides,
+                      args.rate, args.duration)
+    report = summarize_graph(latencies_ms(graph.recording), len(graph.recording.published_s),
+                             graph.node_start, graph.node_end, graph.node_counts)
+    report.update(rate_hz=args.rate, duration_s=args.duration,
+                  node_timings_ms=graph.recording.timings_ms)
+    return report
+
+
+def format_frames(report):
+    """Make the stage table of a stage benchmark report."""
+    lines = [f'{"stage (ms)":26s}{"median":>9s}{"p95":>9s}{"max":>9s}'
+             f'{"all: median":>13s}{"p95":>9s}{"max":>9s}']
+    rows = [(stage, report['stages'].get(stage), report['all_objects']['stages'].get(stage))
+            for stage in STAGES]
+    rows.append(('total', report['total'], report['all_objects']['total']))
+    for name, mine, everything in rows:
+        lines.append(f'{name:26s}{_cells(mine)}{_cells(everything, first=13)}')
+    lines.append(f'fps {report["fps"]:.1f} (all objects {report["all_objects"]["fps"]:.1f}); '
+                 f'objects per frame {report["objects_per_frame"]:.2f} (all objects '
+                 f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '
+                 f'{report["peak_rss_mb"]:.0f} MB; torch threads {report["torch_threads"]}')
+    return '\n'.join(lines + _format_budgets(report['budgets']))
+
+
+def format_graph(report):
+    """Make the summary lines of a graph benchmark report."""
+    frames, node = report['frames'], report['node']
+    lines = [f'{"latency (ms)":26s}{"median":>9s}{"p95":>9s}{"max":>9s}',
+             f'{"publish -> last pose":26s}{_cells(report["latency"])}',
+             f'{"publish -> markers":26s}{_cells(report["answer_latency"])}',
+             f'frames: {frames["published"]} published, {frames["answered"]} answered, '
+             f'{frames["dropped"]} dropped, {frames["with_poses"]} with poses; node counted '
+             f'{node["counts"]}',
+             f'node: CPU {node["cpu_percent"]:.0f} %, RSS {node["rss_start_mb"]:.0f} -> '
+             f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_percent"]:+.1f} %)']
+    return '\n'.join(lines + _format_budgets(report['budgets']))
+
+
+def run(args):
+    """Run the chosen benchmark, print its summary and write the JSON; returns 0."""
+    overrides = node_overrides(args)
+    values = read_params_file(args.params, overrides)
+    frames = BopDataset(args.dataset).frames()[:args.frames]
+    if not frames:
+        raise InputError(f'no frames in {args.dataset}')
+    if args.graph:
+        report = bench_graph(args, frames, values, overrides)
+        print(format_graph(report))
+    else:
+        report = bench_frames(frames, values, args.warmup)
+        print(format_frames(report))
+    report['config'] = {'dataset': str(args.dataset), 'params': str(args.params),
+                        'overrides': overrides, 'frames': len(frames), 'graph': args.graph}
+    if args.json is not None:
+        write_json_atomic(args.json, report)
+        print(f'report written to {args.json}')
+    return 0
+
+
+def _cells(stats, first=9):
+    if not stats or stats['median_ms'] is None:
+        return f'{"-":>{first}s}{"-":>9s}{"-":>9s}'
+    return (f'{stats["median_ms"]:>{first}.3f}{stats["p95_ms"]:>9.3f}'
+            f'{stats["max_ms"]:>9.3f}')
+
+
+def _format_budgets(budgets):
+    lines = []
+    for name, entry in budgets.items():
+        value = '-' if entry['value'] is None else f'{entry["value"]:.3f}'
+        verdict = 'met' if entry['met'] else 'MISSED'
+        lines.append(f'budget {name}: {value} (limit {entry["limit"]}) {verdict}')
+    return lines

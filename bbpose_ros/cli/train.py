@@ -1,0 +1,188 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose train``: render a training cache, train the detector or Q-Net, run Fig. 3.
+
+* ``bbpose train render``: synthetic scenes -> a cache folder (outside the repository, e.g.
+  ~/.cache/bbpose/train), resumable.
+* ``bbpose train detector`` / ``bbpose train qnet``: train from the cache within a step and/or
+  time budget; ``--run-dir`` holds checkpoint.pt (resumed), log.csv, train.log, loss.png and
+  the weight file; ``--export`` copies the weight file (e.g. to bbpose_ros/weights/).
+* ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
+  initialisation and samples, losses in one plot.
+"""
+
+import json
+import os
+from pathlib import Path
+
+from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
+from bbpose_ros.core.errors import InputError
+
+DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
+
+
+def add_parser(subparsers):
+    """Register ``bbpose train`` and its sub-subcommands."""
+    parser = subparsers.add_parser(
+        'train', help='train the detector or Q-Net on synthetic renders',
+        description='Render synthetic training scenes once, then train the learned stages.')
+    sub = parser.add_subparsers(dest='stage', metavar='STAGE', required=True)
+
+    render = sub.add_parser('render', help='render a training cache')
+    _common(render)
+    render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
+    render.add_argument('--workers', type=int, default=2, help='rendering processes')
+    render.set_defaults(func=run_render)
+
+    for stage, func in (('detector', run_detector), ('qnet', run_qnet)):
+        stage_parser = sub.add_parser(stage, help=f'train the {stage}')
+        _common(stage_parser)
+        _budget(stage_parser)
+        stage_parser.set_defaults(func=func)
+    qnet = sub.choices['qnet']
+    _qnet_options(qnet)
+    fig3 = sub.add_parser('fig3', help="the paper's Fig. 3: with vs without q-normalization")
+    _common(fig3)
+    _budget(fig3, steps=3000)
+    _qnet_options(fig3)
+    fig3.set_defaults(func=run_fig3)
+
+
+def _common(parser):
+    add_dataset_argument(parser)
+    add_objects_argument(parser)
+    parser.add_argument('--cache', type=Path, default=DEFAULT_CACHE,
+                        help='training cache folder (default: $BBPOSE_CACHE or %(default)s)')
+    parser.add_argument('--seed', type=int, default=1, help='random seed')
+    parser.add_argument('--threads', type=int, default=2, help='torch threads')
+
+
+def _budget(parser, steps=20000):
+    parser.add_argument('--run-dir', type=Path, required=True,
+                        help='run folder: checkpoint (resumed), logs, plot, weights')
+    parser.add_argument('--steps', type=int, default=steps,
+                        help='total steps (the learning-rate schedule spans them)')
+    parser.add_argument('--minutes', type=float, default=None,
+                        help='stop after this many minutes (resume later)')
+    parser.add_argument('--every', type=int, default=500, help='steps between checkpoints')
+    parser.add_argument('--export', type=Path, default=None,
+                        help='also copy the weight file here at every checkpoint')
+    parser.add_argument('--batch', type=int, default=None, help='batch size')
+    parser.add_argument('--lr', type=float, default=None, help='peak learning rate')
+    parser.add_argument('--max-shards', type=int, default=None,
+                        help='use only the first N cache shards')
+
+
+def _qnet_options(parser):
+    parser.add_argument('--crop-size', type=int, default=48, help='crop side (paper: 48)')
+    parser.add_argument('--rotation-target', choices=('egocentric', 'allocentric'),
+                        default='egocentric', help='regressed rotation (paper: egocentric)')
+    parser.add_argument('--sharing', choices=('shared', 'per_object'), default='shared',
+                        help='one trunk with per-object heads, or one network per object')
+    parser.add_argument('--box-sigma', type=float, default=None,
+                        help='crop jitter: per-side box error / box size (default 0.05)')
+    parser.add_argument('--box-sigma-from', type=Path, default=None,
+                        help='a detector weight file: use its measured side_sigma')
+    parser.add_argument('--sign-invariant', action='store_true',
+                        help='loss (1 - |q.q_gt|) / 2 instead of the hemisphere rule alone')
+
+
+def _settings(settings, args):
+    for name in ('batch', 'lr'):
+        if getattr(args, name) is not None:
+            setattr(settings, name, getattr(args, name))
+    return settings
+
+
+def _load(args):
+    from bbpose_ros.core.models import load_bop_models
+    from bbpose_ros.core.training.cache import TrainingCache
+    cache = TrainingCache(args.cache, args.max_shards)
+    models = load_bop_models(args.dataset, args.objects or cache.objects)
+    return cache, models
+
+
+def run_render(args):
+    """Render the training cache."""
+    from bbpose_ros.core.bop import BopDataset
+    from bbpose_ros.core.synth import SyntheticScenes
+    from bbpose_ros.core.training.cache import build_cache
+    dataset = BopDataset(args.dataset)
+    models = dataset.load_models(args.objects)
+    camera = dataset.frames()[0].camera
+    build_cache(SyntheticScenes(models, camera, seed=args.seed), args.cache, args.scenes,
+                (320, 240), workers=args.workers)
+    return 0
+
+
+def run_detector(args):
+    """Train the detector."""
+    from bbpose_ros.core.nets.detector import DetectorConfig
+    from bbpose_ros.core.training.detector_training import DetectorTrainSettings
+    from bbpose_ros.core.training.runs import train_detector
+    cache, models = _load(args)
+    config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size))
+    train_detector(cache, config, _settings(DetectorTrainSettings(), args), args.run_dir,
+                   args.steps, _seconds(args), args.seed, args.threads, args.export,
+                   args.every)
+    return 0
+
+
+def _qnet_setup(args):
+    from bbpose_ros.core.nets.qnet import QNetConfig
+    from bbpose_ros.core.training.qnet_training import QNetTrainSettings
+    cache, models = _load(args)
+    config = QNetConfig(tuple(models), crop_size=args.crop_size,
+                        rotation_target=args.rotation_target, sharing=args.sharing)
+    settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant), args)
+    if args.box_sigma_from is not None:
+        settings.box_sigma = _measured_sigma(args.box_sigma_from)
+    if args.box_sigma is not None:
+        settings.box_sigma = args.box_sigma
+    return cache, models, config, settings
+
+
+def run_qnet(args):
+    """Train Q-Net."""
+    from bbpose_ros.core.training.runs import train_qnet
+    cache, models, config, settings = _qnet_setup(args)
+    train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
+               args.seed, args.threads, args.export, args.every)
+    return 0
+
+
+def run_fig3(args):
+    """Train Q-Net with and without q-normalization and plot both losses."""
+    from bbpose_ros.core.training.fig3 import q_normalization_experiment
+    cache, models, config, settings = _qnet_setup(args)
+    summary = q_normalization_experiment(cache, models, config, settings, args.run_dir,
+                                         args.steps, args.seed, args.threads)
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+def _seconds(args):
+    return None if args.minutes is None else args.minutes * 60.0
+
+
+def _measured_sigma(path):
+    from bbpose_ros.core.weights import read_weights
+    metadata, _ = read_weights(path, 'detector')
+    sigma = metadata.get('training', {}).get('validation', {}).get('side_sigma')
+    if not sigma:
+        raise InputError(f'weight file {path}: field "training.validation.side_sigma" is '
+                         'missing')
+    return float(sigma)

@@ -1,0 +1,106 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+2D detection metrics of the pipeline's detector on BOP frames: recall and AP at IoU 0.5.
+
+Boxes are amodal [u_min, v_min, u_max, v_max] in continuous pixels, compared with the
+ground-truth ``bbox_obj`` boxes. Per object name, detections are matched greedily by score
+(``evaluation.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
+detection that only matches a less visible instance is ignored (neither hit nor false alarm).
+Recall is also given over the instances with visible fraction >= 0.3.
+"""
+
+import math
+
+import numpy as np
+from tqdm import tqdm
+
+from bbpose_ros.core.evaluation import DETECTION_IOU, match_by_score
+
+VISIB_STRICT = 0.3
+
+
+def average_precision(scores, hits, positives):
+    """
+    All-point interpolated AP (VOC 2010+ / COCO style) from per-detection results.
+
+    Args:
+        scores: (D,) detection scores.
+        hits: (D,) bool, True for a detection matched to a counted instance.
+        positives: number of counted instances.
+
+    """
+    if positives == 0:
+        return math.nan
+    order = np.argsort(-np.asarray(scores, dtype=float), kind='stable')
+    hits = np.asarray(hits, dtype=bool)[order]
+    tp, fp = np.cumsum(hits), np.cumsum(~hits)
+    recall = tp / positives
+    precision = tp / np.maximum(tp + fp, 1)
+    precision = np.concatenate([[0.0], precision, [0.0]])
+    recall = np.concatenate([[0.0], recall, [recall[-1] if len(recall) else 0.0]])
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    return float(np.sum((recall[1:] - recall[:-1]) * precision[1:]))
+
+
+def evaluate_detections(frames, pipeline, min_visib=0.1, progress=True):
+    """
+    Score ``pipeline.detector`` on BopFrames.
+
+    Returns:
+        {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
+        'recall_iou50_visib30'}}, 'mean': {same keys averaged over objects}}.
+
+    """
+    names = list(pipeline.models)
+    found = {n: [] for n in names}       # per counted instance: (visib, hit)
+    dets = {n: [] for n in names}        # per detection: (score, hit)
+    for frame in tqdm(frames, desc='detecting', unit='frame', disable=not progress):
+        detections = pipeline.detector(frame.load_image())
+        for name in names:
+            _score_object(name, detections, frame.instances, min_visib, found[name],
+                          dets[name])
+    per_object = {}
+    for name in names:
+        visib = np.array([v for v, _ in found[name]], dtype=float)
+        hit = np.array([h for _, h in found[name]], dtype=bool)
+        strict = visib >= VISIB_STRICT
+        per_object[name] = {
+            'n': int(len(hit)),
+            'recall_iou50': float(hit.mean()) if len(hit) else math.nan,
+            'ap50': average_precision([s for s, _ in dets[name]],
+                                      [h for _, h in dets[name]], len(hit)),
+            'n_visib30': int(strict.sum()),
+            'recall_iou50_visib30': float(hit[strict].mean()) if strict.any() else math.nan,
+        }
+    keys = ('recall_iou50', 'ap50', 'recall_iou50_visib30')
+    mean = {k: float(np.nanmean([v[k] for v in per_object.values()])) for k in keys}
+    return {'detection': per_object, 'mean': mean}
+
+
+def _score_object(name, detections, instances, min_visib, found, dets):
+    """Match one object's detections in a frame; append to ``found`` and ``dets``."""
+    mine = [d for d in detections if d.object_name == name]
+    truths = [i for i in instances if i.object_name == name]
+    matches = match_by_score([d.box_uv for d in mine], [d.score for d in mine],
+                             [t.box_uv for t in truths], DETECTION_IOU)
+    matched = set(matches[matches >= 0].tolist())
+    for k, truth in enumerate(truths):
+        if truth.visib_fract >= min_visib:
+            found.append((truth.visib_fract, k in matched))
+    for detection, match in zip(mine, matches):
+        if match >= 0 and truths[match].visib_fract < min_visib:
+            continue
+        dets.append((detection.score, bool(match >= 0)))

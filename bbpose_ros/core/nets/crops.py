@@ -1,0 +1,73 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Square crops around 2D boxes, the input of Q-Net, and the rays through the box centres.
+
+Boxes are [u_min, v_min, u_max, v_max] in the OpenCV continuous pixel convention (pixel
+centres at integers). A crop is square, centred on the box, of side ``context`` times the
+box's longest side, so the aspect ratio is kept and some background stays around the object;
+parts outside the image are filled with grey.
+"""
+
+import cv2
+import numpy as np
+
+FILL_VALUE = 128
+
+
+def square_boxes(boxes_uv, context):
+    """(N, 4) square boxes of side ``context`` * longest side, centred on (N, 4) boxes."""
+    boxes = np.asarray(boxes_uv, dtype=float).reshape(-1, 4)
+    centre = (boxes[:, :2] + boxes[:, 2:]) / 2.0
+    half = context * np.max(boxes[:, 2:] - boxes[:, :2], axis=1, keepdims=True) / 2.0
+    half = np.maximum(half, 1.0)
+    return np.concatenate([centre - half, centre + half], axis=1)
+
+
+def extract_crops(image, squares, size):
+    """
+    Cut (N, 4) square regions out of an (H, W, 3) uint8 image, each resized to size x size.
+
+    The region's edges are rounded to whole pixels (<= 0.5 px); shrinking uses area averaging
+    (no aliasing), growing uses bilinear interpolation. Returns (N, size, size, 3) uint8.
+    """
+    squares = np.asarray(squares, dtype=float).reshape(-1, 4)
+    height, width = image.shape[:2]
+    crops = np.empty((len(squares), size, size, 3), dtype=np.uint8)
+    for k, (u0, v0, u1, _) in enumerate(squares):
+        side = max(1, int(round(u1 - u0)))
+        x0, y0 = int(np.floor(u0 + 0.5)), int(np.floor(v0 + 0.5))
+        x1, y1 = x0 + side, y0 + side
+        region = image[max(y0, 0):min(y1, height), max(x0, 0):min(x1, width)]
+        if region.shape[0] != side or region.shape[1] != side:
+            region = _padded(region, side, max(0, -y0), max(0, -x0))
+        interpolation = cv2.INTER_AREA if side > size else cv2.INTER_LINEAR
+        crops[k] = cv2.resize(region, (size, size), interpolation=interpolation)
+    return crops
+
+
+def _padded(region, side, top, left):
+    """Place a partial region into a grey side x side canvas at (top, left)."""
+    canvas = np.full((side, side, 3), FILL_VALUE, dtype=np.uint8)
+    h, w = region.shape[:2]
+    canvas[top:top + h, left:left + w] = region
+    return canvas
+
+
+def box_centre_rays(boxes_uv, camera):
+    """(N, 3) rays (x/z, y/z, 1) in the camera frame through the centres of (N, 4) boxes."""
+    boxes = np.asarray(boxes_uv, dtype=float).reshape(-1, 4)
+    centre = camera.normalized((boxes[:, :2] + boxes[:, 2:]) / 2.0)
+    return np.concatenate([centre, np.ones((len(boxes), 1))], axis=1)

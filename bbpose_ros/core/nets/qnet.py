@@ -1,0 +1,156 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Q-Net: a small CNN that regresses one unit quaternion (wxyz) from a square object crop.
+
+The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling (stride 2),
+then fully connected layers, then the q-normalization layer. Batch normalisation after each
+convolution speeds up CPU training; it costs next to nothing at inference. Widths are kept
+small so that all the crops of a frame (up to 8 at 48x48) run in about 2 ms on 2 CPU cores.
+
+Options (``QNetConfig``), the paper's version being the default where it has one:
+
+* ``crop_size`` 48 (paper) or larger, e.g. 64 (one more pooling stage is not added: the
+  last feature map grows instead);
+* ``rotation_target`` 'egocentric' (paper: the model-to-camera rotation) or 'allocentric'
+  (rotation relative to the ray through the box centre; see ``rotations.ray_rotation``);
+* ``sharing`` 'shared' (one trunk, one 4-output head per object) or 'per_object' (one whole
+  network per object, as the paper trains them);
+* ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison).
+"""
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from bbpose_ros.core.nets.quaternion import QNormalization
+
+ROTATION_TARGETS = ('egocentric', 'allocentric')
+SHARING_MODES = ('shared', 'per_object')
+
+# Fixed input normalisation of crops given as float RGB in 0..1.
+_MEAN = 0.5
+_STD = 0.25
+
+
+@dataclass(frozen=True)
+class QNetConfig:
+    """
+    Architecture and convention of a Q-Net (all stored in its weight file).
+
+    Attributes:
+        objects: object names, one head (or network) each, in this order.
+        crop_size: side of the square input crop in pixels.
+        context: crop side / longest box side (>= 1 keeps context around the box).
+        channels: output channels of the conv + max-pool stages.
+        fc_size: width of the hidden fully connected layer.
+        rotation_target: 'egocentric' or 'allocentric'.
+        sharing: 'shared' or 'per_object'.
+        q_normalization: whether the q-normalization layer ends the network.
+        dropout: dropout probability after the hidden FC layer (training only).
+
+    """
+
+    objects: tuple
+    crop_size: int = 48
+    context: float = 1.2
+    channels: tuple = (16, 32, 64, 64)
+    fc_size: int = 256
+    rotation_target: str = 'egocentric'
+    sharing: str = 'shared'
+    q_normalization: bool = True
+    dropout: float = 0.2
+
+    def __post_init__(self):
+        if self.rotation_target not in ROTATION_TARGETS:
+            raise ValueError(f'rotation_target must be one of {ROTATION_TARGETS}')
+        if self.sharing not in SHARING_MODES:
+            raise ValueError(f'sharing must be one of {SHARING_MODES}')
+        if self.crop_size % 2 ** len(self.channels):
+            raise ValueError(f'crop_size {self.crop_size} is not divisible by '
+                             f'2^{len(self.channels)}')
+
+    def to_dict(self):
+        """JSON-ready dict (tuples become lists)."""
+        data = asdict(self)
+        data['objects'] = list(self.objects)
+        data['channels'] = list(self.channels)
+        return data
+
+    @classmethod
+    def from_dict(cls, data):
+        """Inverse of ``to_dict``."""
+        data = dict(data)
+        data['objects'] = tuple(data['objects'])
+        data['channels'] = tuple(data['channels'])
+        return cls(**data)
+
+
+def _trunk(config):
+    """Conv + BN + ReLU + max-pool stages, flatten, hidden FC + ReLU + dropout."""
+    layers, width = [], 3
+    for channels in config.channels:
+        layers += [nn.Conv2d(width, channels, 3, padding=1, bias=False),
+                   nn.BatchNorm2d(channels), nn.ReLU(inplace=True), nn.MaxPool2d(2)]
+        width = channels
+    side = config.crop_size // 2 ** len(config.channels)
+    layers += [nn.Flatten(), nn.Linear(width * side * side, config.fc_size),
+               nn.ReLU(inplace=True), nn.Dropout(config.dropout)]
+    return nn.Sequential(*layers)
+
+
+class QNet(nn.Module):
+    """
+    Q-Net for one or several objects.
+
+    ``forward(crops, object_index)``: crops (N, 3, S, S) float RGB in 0..1, object_index (N,)
+    long (position in ``config.objects``) -> (N, 4) quaternions (wxyz; unit length when
+    ``config.q_normalization``).
+    """
+
+    def __init__(self, config):
+        super().__init__()
+        self.config = config
+        count = len(config.objects)
+        trunks = 1 if config.sharing == 'shared' else count
+        self.trunks = nn.ModuleList([_trunk(config) for _ in range(trunks)])
+        # One 4-output head per object (rows 4k..4k+3); with per_object trunks, head k only
+        # ever sees trunk k's features, so each object has a whole network of its own.
+        self.head = nn.Linear(config.fc_size, 4 * count)
+        self.normalize = QNormalization() if config.q_normalization else nn.Identity()
+        self._init_weights()
+
+    def _init_weights(self):
+        """Xavier weights and zero biases, as in the paper."""
+        for module in self.modules():
+            if isinstance(module, (nn.Conv2d, nn.Linear)):
+                nn.init.xavier_uniform_(module.weight)
+                if module.bias is not None:
+                    nn.init.zeros_(module.bias)
+
+    def forward(self, crops, object_index):
+        """Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,)."""
+        x = (crops - _MEAN) / _STD
+        if len(self.trunks) == 1:
+            features = self.trunks[0](x)
+        else:
+            features = x.new_empty((len(x), self.config.fc_size))
+            for k in torch.unique(object_index).tolist():
+                chosen = object_index == k
+                features[chosen] = self.trunks[k](x[chosen])
+        raw = self.head(features).view(len(x), -1, 4)
+        raw = raw[torch.arange(len(x), device=x.device), object_index]
+        return self.normalize(raw)

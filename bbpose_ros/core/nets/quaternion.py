@@ -1,0 +1,63 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The paper's q-normalization layer and Dot Product Loss, with the symmetric-object extension.
+
+Quaternions here are (w, x, y, z) = (q0, q1, q2, q3), the paper's order, in (B, 4) tensors.
+Ground truths live on the q0 >= 0 hemisphere (the paper's q+ rule).
+"""
+
+import torch
+from torch import nn
+
+
+class QNormalization(nn.Module):
+    """
+    q-normalization layer: q_i = Q_i / sqrt(sum_j Q_j^2), over the last axis.
+
+    Autograd's backward equals the paper's dq_j/dQ_i = (delta_ij - q_i q_j) / A with
+    A = ||Q|| (checked in test/test_qnet.py). ``eps`` only guards a zero vector.
+    """
+
+    def __init__(self, eps=1e-8):
+        super().__init__()
+        self.eps = eps
+
+    def forward(self, raw):
+        """Map (..., 4) raw outputs Q to unit quaternions q."""
+        return raw / raw.norm(dim=-1, keepdim=True).clamp_min(self.eps)
+
+
+def dot_product_loss(q_pred, q_true):
+    """Per-sample Dot Product Loss (1 - q_pred . q_true) / 2 of (B, 4) tensors -> (B,)."""
+    return 0.5 * (1.0 - (q_pred * q_true).sum(dim=-1))
+
+
+def symmetric_dot_product_loss(q_pred, q_candidates, valid):
+    """
+    Dot Product Loss against the best of several equivalent ground truths.
+
+    Args:
+        q_pred: (B, 4) predicted quaternions (wxyz).
+        q_candidates: (B, K, 4) ground truth composed with each symmetry of its object
+            (identity first), each on the q0 >= 0 hemisphere.
+        valid: (B, K) bool, False for padding (objects with fewer symmetries).
+
+    Returns:
+        (B,) per-sample loss: the minimum over the valid candidates.
+
+    """
+    losses = 0.5 * (1.0 - torch.einsum('bd,bkd->bk', q_pred, q_candidates))
+    return losses.masked_fill(~valid, float('inf')).min(dim=1).values

@@ -1,0 +1,169 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A rendered training set on disk: synthetic scenes turned into detector inputs and crops.
+
+Rendering on 2 CPU cores (~10 scenes/s) is far slower than training, so scenes are rendered
+once, in shards of ``SHARD_SIZE``, and reused for many epochs with online augmentation. A
+shard ``shard_NNNNN.npz`` holds, for its scenes:
+
+* ``images`` (n, H_in, W_in, 3) uint8: the frame resized to the detector input size;
+* per instance (m of them, visible fraction >= MIN_VISIB): ``scene`` (m,) index into
+  ``images``, ``object`` (m,) index into the cache's object list, ``box_uv`` (m, 4) amodal box
+  in full-frame continuous pixels, ``visib`` (m,), ``rotation`` (m, 3, 3) egocentric
+  model-to-camera, ``translation`` (m, 3) metres, ``crop`` (m, CROP_SIZE, CROP_SIZE, 3) uint8
+  of ``square`` (m, 4): a square of CROP_CONTEXT times the box's longest side around it.
+
+``meta.json`` records the objects, camera, seed and sizes. Shards are written atomically,
+so an interrupted build resumes where it stopped.
+"""
+
+import json
+import multiprocessing
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.nets.crops import extract_crops, square_boxes
+
+SHARD_SIZE = 250
+CROP_SIZE = 128
+CROP_CONTEXT = 2.0
+MIN_VISIB = 0.05
+
+_WORKER = {}
+
+
+def _init_worker(scenes, input_size):
+    _WORKER['scenes'] = scenes
+    _WORKER['input_size'] = input_size
+
+
+def _render(index):
+    """Render scene ``index`` in a worker; returns (small image, instance records)."""
+    scenes, (in_w, in_h) = _WORKER['scenes'], _WORKER['input_size']
+    sample = scenes.sample(index)
+    small = cv2.resize(sample.image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
+    kept = [i for i in sample.instances if i.visib_fract >= MIN_VISIB]
+    if not kept:
+        return small, None
+    boxes = np.stack([i.box_uv for i in kept])
+    squares = square_boxes(boxes, CROP_CONTEXT)
+    records = {
+        'object': np.array([scenes.target_names.index(i.object_name) for i in kept]),
+        'box_uv': boxes, 'visib': np.array([i.visib_fract for i in kept]),
+        'rotation': np.stack([i.rotation for i in kept]),
+        'translation': np.stack([i.translation for i in kept]),
+        'crop': extract_crops(sample.image_rgb, squares, CROP_SIZE), 'square': squares,
+    }
+    return small, records
+
+
+def build_cache(scenes, cache_dir, count, input_size, workers=2, progress=True):
+    """
+    Render ``count`` scenes of a SyntheticScenes into ``cache_dir`` (resumable).
+
+    Args:
+        scenes: SyntheticScenes (targets = the cache's objects).
+        cache_dir: output folder (created).
+        count: number of scenes; rounded up to whole shards.
+        input_size: (width, height) of the stored detector images.
+        workers: rendering processes (each makes its own GL context).
+        progress: show a tqdm bar.
+
+    """
+    cache_dir = Path(cache_dir)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    camera = scenes.camera
+    meta = {'objects': scenes.target_names, 'seed': scenes.seed,
+            'camera': [camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                       camera.height],
+            'input_size': list(input_size), 'crop_size': CROP_SIZE,
+            'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE}
+    meta_path = cache_dir / 'meta.json'
+    if meta_path.is_file() and json.loads(meta_path.read_text()) != meta:
+        raise InputError(f'cache {cache_dir} was built with other settings ({meta_path})')
+    meta_path.write_text(json.dumps(meta, indent=1))
+    shards = -(-count // SHARD_SIZE)
+    todo = [s for s in range(shards) if not _shard_path(cache_dir, s).is_file()]
+    context = multiprocessing.get_context('fork')
+    with context.Pool(workers, _init_worker, (scenes, tuple(input_size))) as pool, \
+            tqdm(total=len(todo) * SHARD_SIZE, desc='rendering', unit='scene',
+                 disable=not progress) as bar:
+        for shard in todo:
+            indices = range(shard * SHARD_SIZE, (shard + 1) * SHARD_SIZE)
+            results = []
+            for result in pool.imap(_render, indices, chunksize=4):
+                results.append(result)
+                bar.update()
+            _write_shard(_shard_path(cache_dir, shard), results)
+
+
+def _shard_path(cache_dir, shard):
+    return Path(cache_dir) / f'shard_{shard:05d}.npz'
+
+
+def _write_shard(path, results):
+    images = np.stack([small for small, _ in results])
+    arrays = {'images': images}
+    records = [(k, r) for k, (_, r) in enumerate(results) if r is not None]
+    for key in ('object', 'box_uv', 'visib', 'rotation', 'translation', 'crop', 'square'):
+        arrays[key] = np.concatenate([r[key] for _, r in records])
+    arrays['scene'] = np.concatenate([np.full(len(r['object']), k) for k, r in records])
+    for key in ('box_uv', 'visib', 'rotation', 'translation', 'square'):
+        arrays[key] = arrays[key].astype(np.float32)
+    tmp = path.with_name(path.stem + '.partial.npz')
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+class TrainingCache:
+    """
+    All shards of a cache folder, loaded into memory and concatenated.
+
+    Attributes:
+        objects: object names (index = ``object`` values).
+        camera: CameraIntrinsics of the full frames.
+        input_size: (width, height) of ``images``.
+        images: (S, H_in, W_in, 3) uint8.
+        Instance arrays as in the module docstring, with ``scene`` indexing ``images``.
+
+    """
+
+    def __init__(self, cache_dir, max_shards=None):
+        cache_dir = Path(cache_dir)
+        meta_path = cache_dir / 'meta.json'
+        if not meta_path.is_file():
+            raise InputError(f'no training cache in {cache_dir} (missing meta.json); build '
+                             'it with "bbpose train render"')
+        meta = json.loads(meta_path.read_text())
+        self.objects = list(meta['objects'])
+        self.camera = CameraIntrinsics(*meta['camera'][:4], *map(int, meta['camera'][4:]))
+        self.input_size = tuple(meta['input_size'])
+        self.crop_context = float(meta['crop_context'])
+        paths = sorted(cache_dir.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
+        if not paths:
+            raise InputError(f'training cache {cache_dir} has no shards yet')
+        parts = [dict(np.load(p)) for p in paths]
+        offsets = np.cumsum([0] + [len(p['images']) for p in parts[:-1]])
+        for part, offset in zip(parts, offsets):
+            part['scene'] = part['scene'] + offset
+        for key in parts[0]:
+            setattr(self, key, np.concatenate([p[key] for p in parts]))
+        self.shards = len(paths)

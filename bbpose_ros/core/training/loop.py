@@ -1,0 +1,172 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The shared training loop: step or time budget, checkpoints and resume, log and loss plot.
+
+A run folder holds ``checkpoint.pt`` (network, optimizer, step; small enough to commit),
+``log.csv`` (step, seconds, loss, lr and validation figures), ``train.log`` (text) and
+``loss.png``. Resuming continues the step count, the learning-rate schedule and the log.
+"""
+
+import csv
+import math
+from pathlib import Path
+import time
+
+from matplotlib.figure import Figure
+import torch
+from tqdm import tqdm
+
+
+class RunLog:
+    """Appends rows to ``log.csv`` and lines to ``train.log`` in a run folder."""
+
+    def __init__(self, run_dir):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.csv_path = self.run_dir / 'log.csv'
+        self.text_path = self.run_dir / 'train.log'
+
+    def text(self, line):
+        """Write one timestamped line to train.log (and tqdm's stream)."""
+        stamp = time.strftime('%Y-%m-%d %H:%M:%S')
+        with open(self.text_path, 'a') as stream:
+            stream.write(f'{stamp} {line}\n')
+        tqdm.write(line)
+
+    def row(self, values):
+        """Append the dict ``values`` as a CSV row; the first row also writes the header."""
+        new = not self.csv_path.is_file()
+        with open(self.csv_path, 'a', newline='') as stream:
+            writer = csv.DictWriter(stream, fieldnames=list(values))
+            if new:
+                writer.writeheader()
+            writer.writerow(values)
+
+    def rows(self):
+        """All CSV rows as dicts of floats (empty cells become NaN)."""
+        if not self.csv_path.is_file():
+            return []
+        with open(self.csv_path) as stream:
+            return [{k: float(v) if v not in ('', None) else math.nan for k, v in r.items()}
+                    for r in csv.DictReader(stream)]
+
+
+def plot_curves(path, series, title, ylabel='loss', log_y=False, ylim=None):
+    """Plot {label: (steps, values)} into a PNG at ``path`` (``ylim``: (low, high) or None)."""
+    figure = Figure(figsize=(6, 4))
+    axes = figure.add_subplot()
+    for label, (steps, values) in series.items():
+        axes.plot(steps, values, label=label)
+    axes.set_xlabel('iteration')
+    axes.set_ylabel(ylabel)
+    axes.set_title(title)
+    if log_y:
+        axes.set_yscale('log')
+    if ylim:
+        axes.set_ylim(*ylim)
+    axes.grid(alpha=0.3)
+    axes.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+
+
+def cosine_lr(base_lr, step, total_steps, warmup=200):
+    """Linear warm-up then cosine decay to 5 % of ``base_lr``."""
+    if step < warmup:
+        return base_lr * (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total_steps - warmup))
+    return base_lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def run_loop(run_dir, network, optimizer, train_step, steps, seconds, base_lr,
+             validate=None, every=500, on_checkpoint=None, progress=True, extra_state=None):
+    """
+    Train until ``steps`` total steps or ``seconds`` of this session, whichever is first.
+
+    Args:
+        run_dir: run folder (checkpoint.pt there is resumed).
+        network: the torch module.
+        optimizer: its optimizer.
+        train_step: callable(step) -> loss float; does one optimisation step.
+        steps: total step budget (the cosine schedule spans it).
+        seconds: wall-clock budget of this call (None: unlimited).
+        base_lr: peak learning rate.
+        validate: optional callable() -> dict of validation figures, run at checkpoints.
+        every: steps between checkpoints.
+        on_checkpoint: optional callable(step) after each checkpoint (e.g. export weights).
+        progress: show a tqdm bar.
+        extra_state: dict saved in and restored from the checkpoint (updated in place).
+
+    Returns:
+        The number of steps done in total.
+
+    """
+    log = RunLog(run_dir)
+    checkpoint = Path(run_dir) / 'checkpoint.pt'
+    step = 0
+    if checkpoint.is_file():
+        state = torch.load(checkpoint, map_location='cpu', weights_only=True)
+        network.load_state_dict(state['network'])
+        optimizer.load_state_dict(state['optimizer'])
+        step = int(state['step'])
+        if extra_state is not None:
+            extra_state.update(state.get('extra', {}))
+        log.text(f'resumed from {checkpoint} at step {step}')
+    start = time.monotonic()
+    losses = []
+    bar = tqdm(total=steps, initial=step, desc='training', unit='step', disable=not progress)
+    while step < steps and (seconds is None or time.monotonic() - start < seconds):
+        lr = cosine_lr(base_lr, step, steps)
+        for group in optimizer.param_groups:
+            group['lr'] = lr
+        network.train()
+        losses.append(train_step(step))
+        step += 1
+        bar.update()
+        bar.set_postfix(loss=f'{losses[-1]:.4f}')
+        if step % every == 0 or step == steps:
+            _checkpoint(checkpoint, network, optimizer, step, extra_state)
+            figures = validate() if validate else {}
+            mean = sum(losses[-every:]) / len(losses[-every:])
+            log.row({'step': step, 'seconds': round(time.monotonic() - start, 1),
+                     'loss': mean, 'lr': lr, **figures})
+            log.text(f'step {step} loss {mean:.5f} lr {lr:.2e} ' +
+                     ' '.join(f'{k} {v:.4f}' for k, v in figures.items()))
+            _plot_log(log)
+            if on_checkpoint:
+                on_checkpoint(step)
+    bar.close()
+    if step % every:
+        _checkpoint(checkpoint, network, optimizer, step, extra_state)
+        if on_checkpoint:
+            on_checkpoint(step)
+    return step
+
+
+def _checkpoint(path, network, optimizer, step, extra_state):
+    tmp = path.with_name(path.name + '.partial')
+    torch.save({'network': network.state_dict(), 'optimizer': optimizer.state_dict(),
+                'step': step, 'extra': extra_state or {}}, tmp)
+    tmp.replace(path)
+
+
+def _plot_log(log):
+    rows = log.rows()
+    steps = [r['step'] for r in rows]
+    series = {'train loss': (steps, [r['loss'] for r in rows])}
+    if rows and 'val_loss' in rows[0]:
+        series['validation loss'] = (steps, [r['val_loss'] for r in rows])
+    plot_curves(log.run_dir / 'loss.png', series, log.run_dir.name, log_y=True)

@@ -1,0 +1,162 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Q-Net training on a rendered cache: jittered crops, symmetric-aware Dot Product Loss.
+
+Each step draws ``batch`` instances (visible fraction >= ``min_visib``), jitters their amodal
+boxes as a detector would (``box_sigma``: per-side error / box size, measured on the
+detector), cuts the square crop the estimator would cut, applies photometric augmentation
+and regresses the ground-truth quaternion (wxyz, q0 >= 0), egocentric or allocentric.
+Validation uses the last ``val_fraction`` of the scenes, never seen in training.
+
+``sign_invariant`` (not the paper's) also offers -q as a target, i.e. the loss becomes
+(1 - |q_pred . q|) / 2: q and -q are one rotation, and the q0 = 0 seam of the hemisphere
+rule, where the target jumps from q to -q, disappears.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, square_boxes
+from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
+from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
+from bbpose_ros.core.training.augment import jitter_boxes, photometric
+
+
+@dataclass
+class QNetTrainSettings:
+    """Hyper-parameters of a Q-Net run (all recorded in the weight file)."""
+
+    batch: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    min_visib: float = 0.2
+    box_sigma: float = 0.05
+    val_fraction: float = 0.05
+    augment: float = 1.0
+    sign_invariant: bool = False
+
+
+class QNetBatches:
+    """
+    Draws Q-Net training batches from a TrainingCache.
+
+    Args:
+        cache: TrainingCache.
+        config: QNetConfig of the network (objects, crop size, context, target).
+        models: {name: ObjectModel} for the symmetry transforms.
+        settings: QNetTrainSettings.
+        seed: seed of the draws.
+
+    """
+
+    def __init__(self, cache, config, models, settings, seed):
+        self.cache, self.config, self.settings = cache, config, settings
+        cache_index = [cache.objects.index(name) for name in config.objects]
+        net_index = np.full(len(cache.objects), -1)
+        net_index[cache_index] = np.arange(len(cache_index))
+        self.net_index = net_index[cache.object]
+        scenes = len(cache.images)
+        val_start = int(scenes * (1 - settings.val_fraction))
+        usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)
+        self.train_ids = np.flatnonzero(usable & (cache.scene < val_start))
+        self.val_ids = np.flatnonzero(usable & (cache.scene >= val_start))
+        self.symmetries, self.symmetry_valid = symmetry_rotations(
+            [models[n] for n in config.objects])
+        self.rng = np.random.default_rng(seed)
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def train_batch(self):
+        """(crops (B, 3, S, S) float, object index (B,), candidates (B, K, 4), valid (B, K))."""
+        ids = self.rng.choice(self.train_ids, self.settings.batch)
+        return self.make(ids, self.rng, self.settings.box_sigma, self.settings.augment)
+
+    def make(self, ids, rng, box_sigma, augment):
+        """Build a batch of the instances ``ids`` with the given jitter and augmentation."""
+        cache, config = self.cache, self.config
+        boxes = jitter_boxes(cache.box_uv[ids], rng, box_sigma)
+        squares = square_boxes(boxes, config.context)
+        crops = np.stack([
+            extract_crops(cache.crop[i], _into_stored_crop(square, cache.square[i],
+                                                           cache.crop.shape[1]),
+                          config.crop_size)[0]
+            for i, square in zip(ids, squares)])
+        images = torch.from_numpy(crops).permute(0, 3, 1, 2).float().div_(255.0)
+        if augment > 0:
+            images = photometric(images, self.generator, augment)
+        rotations = cache.rotation[ids].astype(float)
+        if config.rotation_target == 'allocentric':
+            rotations = egocentric_to_allocentric(rotations,
+                                                  box_centre_rays(boxes, cache.camera))
+        index = self.net_index[ids]
+        candidates = rotations[:, None] @ self.symmetries[index]
+        quats = matrix_to_quat_wxyz(candidates)
+        valid = self.symmetry_valid[index]
+        if self.settings.sign_invariant:
+            quats = np.concatenate([quats, -quats], axis=1)
+            valid = np.concatenate([valid, valid], axis=1)
+        return (images.contiguous(memory_format=torch.channels_last),
+                torch.from_numpy(index), torch.from_numpy(quats).float(),
+                torch.from_numpy(valid))
+
+
+def symmetry_rotations(models):
+    """
+    Symmetry rotations of each object, identity first, padded to a common count K.
+
+    Returns (objects, K, 3, 3) rotations (padding: identity) and (objects, K) bool valid.
+    """
+    count = max(len(m.symmetry_transforms) for m in models)
+    rotations = np.tile(np.eye(3), (len(models), count, 1, 1))
+    valid = np.zeros((len(models), count), dtype=bool)
+    for k, model in enumerate(models):
+        transforms = model.symmetry_transforms
+        rotations[k, :len(transforms)] = transforms[:, :3, :3]
+        valid[k, :len(transforms)] = True
+    return rotations, valid
+
+
+def _into_stored_crop(square, stored_square, stored_size):
+    """Map a full-frame square (4,) into the pixel coordinates of a stored crop."""
+    scale = stored_size / (stored_square[2] - stored_square[0])
+    origin = np.array([stored_square[0], stored_square[1]] * 2)
+    return (np.asarray(square) - origin) * scale - 0.5
+
+
+def qnet_step(network, optimizer, batches):
+    """One optimisation step; returns the batch's mean loss."""
+    images, index, candidates, valid = batches.train_batch()
+    loss = symmetric_dot_product_loss(network(images, index), candidates, valid).mean()
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return float(loss.detach())
+
+
+def qnet_validation(network, batches, count=512, seed=12345):
+    """Score held-out scenes: loss, median rotation error (deg), share under 15 deg."""
+    rng = np.random.default_rng(seed)
+    ids = rng.choice(batches.val_ids, min(count, len(batches.val_ids)), replace=False)
+    network.eval()
+    with torch.inference_mode():
+        images, index, candidates, valid = batches.make(ids, rng, batches.settings.box_sigma,
+                                                        0.0)
+        loss = symmetric_dot_product_loss(network(images, index), candidates, valid)
+    # Dot Product Loss L = (1 - cos(theta / 2)) / 2 for a rotation error theta.
+    angles = np.degrees(2 * np.arccos(np.clip(np.abs(1 - 2 * loss.numpy()), 0, 1)))
+    return {'val_loss': float(loss.mean()), 'val_median_deg': float(np.median(angles)),
+            'val_acc15': float(np.mean(angles < 15))}

@@ -1,0 +1,120 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Q-Net: the q-normalization layer, the Dot Product Loss, symmetries and the hemisphere."""
+
+import numpy as np
+import pytest
+import torch
+
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, square_boxes
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.nets.quaternion import (dot_product_loss, QNormalization,
+                                             symmetric_dot_product_loss)
+from bbpose_ros.core.pipeline import Detection
+from bbpose_ros.core.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
+                                       ray_rotation, rotation_error_deg)
+from bbpose_ros.core.training.qnet_training import symmetry_rotations
+
+OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
+
+
+def test_q_normalization_gradient_is_the_papers_formula():
+    torch.manual_seed(0)
+    raw = torch.randn(16, 4, dtype=torch.float64, requires_grad=True)
+    target = torch.nn.functional.normalize(torch.randn(16, 4, dtype=torch.float64), dim=1)
+    dot_product_loss(QNormalization()(raw), target).sum().backward()
+    q_raw = raw.detach()
+    a = q_raw.norm(dim=1, keepdim=True)
+    q_hat = q_raw / a
+    # dq_hat_j / dQ_i = (1 - q_hat_i^2) / A for i == j, -q_hat_i q_hat_j / A otherwise.
+    jacobian = (torch.eye(4, dtype=torch.float64) - q_hat[:, :, None] * q_hat[:, None, :])
+    jacobian = jacobian / a[:, :, None]
+    paper = -0.5 * torch.einsum('bj,bij->bi', target, jacobian)
+    torch.testing.assert_close(raw.grad, paper)
+
+
+def test_dot_product_loss_range():
+    q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    assert float(dot_product_loss(q, q)) == pytest.approx(0.0)
+    assert float(dot_product_loss(q, -q)) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize('name', ['eggbox', 'glue'])
+def test_symmetric_equivalent_gives_zero_loss(lmo_models, name):
+    models = [lmo_models[n] for n in OBJECTS]
+    rotations, valid = symmetry_rotations(models)
+    k = OBJECTS.index(name)
+    assert valid[k].sum() == len(lmo_models[name].symmetry_transforms) >= 2
+    assert valid[OBJECTS.index('ape')].sum() == 1
+    truth = quat_wxyz_to_matrix(np.array([0.8, 0.2, -0.5, 0.26]))
+    candidates = torch.tensor(matrix_to_quat_wxyz(truth @ rotations[k]))[None].float()
+    mask = torch.from_numpy(valid[k])[None]
+    for s in np.flatnonzero(valid[k]):
+        equivalent = truth @ lmo_models[name].symmetry_transforms[s, :3, :3]
+        q_pred = torch.tensor(matrix_to_quat_wxyz(equivalent))[None].float()
+        assert float(symmetric_dot_product_loss(q_pred, candidates, mask)) < 1e-6
+        if s > 0:   # without the symmetry the same prediction is a large error
+            plain = symmetric_dot_product_loss(q_pred, candidates[:, :1], mask[:, :1])
+            assert float(plain) > 0.1
+
+
+def test_targets_are_on_the_positive_hemisphere():
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(100, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    targets = matrix_to_quat_wxyz(quat_wxyz_to_matrix(q))
+    assert np.all(targets[:, 0] >= 0)
+    same = np.isclose(np.abs(np.sum(targets * q, axis=1)), 1.0)
+    assert same.all()
+    # q and -q give one rotation: an output on the other hemisphere decodes the same.
+    np.testing.assert_allclose(quat_wxyz_to_matrix(-q), quat_wxyz_to_matrix(q), atol=1e-12)
+
+
+@pytest.mark.parametrize('crop_size', [48, 64])
+@pytest.mark.parametrize('sharing', ['shared', 'per_object'])
+def test_qnet_outputs_unit_quaternions(crop_size, sharing):
+    net = QNet(QNetConfig(OBJECTS, crop_size=crop_size, sharing=sharing)).eval()
+    crops = torch.rand(5, 3, crop_size, crop_size)
+    with torch.inference_mode():
+        q = net(crops, torch.tensor([0, 5, 6, 7, 0]))
+    assert q.shape == (5, 4)
+    torch.testing.assert_close(q.norm(dim=1), torch.ones(5))
+
+
+def test_allocentric_output_is_turned_egocentric():
+    net = QNet(QNetConfig(OBJECTS, rotation_target='allocentric')).eval()
+    estimator = QNetRotationEstimator(net)
+    image = np.random.default_rng(1).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    box = np.array([40.0, 30.0, 120.0, 100.0])
+    rotation = estimator(image, CAMERA, [Detection('ape', 1.0, box)])
+    crops = extract_crops(image, square_boxes(box, net.config.context), 48)
+    with torch.inference_mode():
+        q = net(torch.from_numpy(crops).permute(0, 3, 1, 2).float() / 255, torch.tensor([0]))
+    allo = quat_wxyz_to_matrix(q.numpy().astype(float))
+    expected = ray_rotation(box_centre_rays(box, CAMERA)) @ allo
+    assert rotation_error_deg(rotation, expected).max() < 1e-3
+    assert rotation_error_deg(rotation, allo).max() > 5.0    # off-centre: the view matters
+
+
+def test_square_crop_keeps_aspect_and_context():
+    squares = square_boxes([[10.0, 20.0, 50.0, 100.0]], 1.2)
+    np.testing.assert_allclose(squares, [[-18.0, 12.0, 78.0, 108.0]])
+    image = np.zeros((480, 640, 3), dtype=np.uint8)
+    crop = extract_crops(image, squares, 48)
+    assert crop.shape == (1, 48, 48, 3)
+    assert crop[0, 24, 0, 0] == 128 and crop[0, 24, 47, 0] == 0   # grey outside the image

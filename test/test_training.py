@@ -1,0 +1,125 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Training: a tiny run lowers the loss, checkpoints resume, batches are consistent."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+
+from bbpose_ros.cli.main import main
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.nets.crops import square_boxes
+from bbpose_ros.core.nets.detector import decode, DetectorConfig
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
+from bbpose_ros.core.rotations import quat_wxyz_to_matrix
+from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
+from bbpose_ros.core.training.loop import run_loop, RunLog
+from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
+
+OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
+
+
+def test_tiny_qnet_run_lowers_the_loss():
+    torch.manual_seed(0)
+    net = QNet(QNetConfig(OBJECTS[:2], channels=(8, 8, 16, 16), fc_size=32, dropout=0.0))
+    crops = torch.rand(16, 3, 48, 48)
+    index = torch.arange(16) % 2
+    target = torch.nn.functional.normalize(torch.randn(16, 1, 4), dim=-1)
+    target = torch.where(target[..., :1] < 0, -target, target)
+    valid = torch.ones(16, 1, dtype=torch.bool)
+    optimizer = torch.optim.Adam(net.parameters(), 3e-3)
+    losses = []
+    for _ in range(60):
+        loss = symmetric_dot_product_loss(net(crops, index), target, valid).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss.detach()))
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_run_loop_checkpoints_and_resumes(tmp_path):
+    net = torch.nn.Linear(2, 1)
+    optimizer = torch.optim.SGD(net.parameters(), 0.1)
+
+    def step(_):
+        loss = net(torch.ones(1, 2)).pow(2).sum()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        return float(loss.detach())
+
+    exported = []
+    assert run_loop(tmp_path, net, optimizer, step, 20, None, 0.1, every=5, progress=False,
+                    on_checkpoint=exported.append, extra_state=None) == 20
+    net2 = torch.nn.Linear(2, 1)
+    optimizer2 = torch.optim.SGD(net2.parameters(), 0.1)
+    assert run_loop(tmp_path, net2, optimizer2, step, 30, 0.0, 0.1, every=5,
+                    progress=False) == 20   # zero seconds: resumes, then stops
+    torch.testing.assert_close(net2.weight, net.weight)
+    assert [r['step'] for r in RunLog(tmp_path).rows()] == [5, 10, 15, 20]
+    assert exported == [5, 10, 15, 20]
+    assert (tmp_path / 'loss.png').stat().st_size > 1000
+
+
+def _fake_cache(rng, scenes=2, per_scene=3):
+    count = scenes * per_scene
+    centre = rng.uniform([150, 120], [490, 360], (count, 2))
+    half = rng.uniform(20, 80, (count, 2))
+    boxes = np.concatenate([centre - half, centre + half], axis=1)
+    q = rng.normal(size=(count, 4))
+    return SimpleNamespace(
+        objects=list(OBJECTS), camera=CAMERA, input_size=(320, 240),
+        images=rng.integers(0, 255, (scenes, 240, 320, 3), dtype=np.uint8),
+        scene=np.repeat(np.arange(scenes), per_scene),
+        object=np.arange(count) % len(OBJECTS), box_uv=boxes,
+        visib=np.ones(count), rotation=quat_wxyz_to_matrix(q),
+        crop=rng.integers(0, 255, (count, 128, 128, 3), dtype=np.uint8),
+        square=square_boxes(boxes, 2.0))
+
+
+def test_detector_targets_decode_to_the_boxes():
+    cache = _fake_cache(np.random.default_rng(3))
+    batches = DetectorBatches(cache, DetectorConfig(OBJECTS), DetectorTrainSettings(), 0)
+    _, heat, sides, weight = batches.make(np.array([0]), 0.0)
+    logits = torch.logit(heat[0].clamp(1e-4, 1 - 1e-4))
+    classes, scores, boxes = decode(logits, sides[0], 8, 0.5, 1)
+    ids = batches.by_scene[0]
+    truth = batches.input_boxes(ids)
+    for j, box in zip(ids, truth):
+        k = list(classes.numpy()).index(batches.class_of[cache.object[j]])
+        np.testing.assert_allclose(boxes[k].numpy(), box, atol=1e-3)
+    assert float(weight.sum()) > 0
+
+
+def test_qnet_batches_are_on_the_hemisphere(lmo_models):
+    cache = _fake_cache(np.random.default_rng(4), scenes=4)
+    config = QNetConfig(OBJECTS, rotation_target='allocentric')
+    settings = QNetTrainSettings(batch=8, val_fraction=0.25)
+    batches = QNetBatches(cache, config, lmo_models, settings, 0)
+    images, index, candidates, valid = batches.train_batch()
+    assert images.shape == (8, 3, 48, 48) and candidates.shape[:2] == valid.shape
+    assert torch.all(candidates[..., 0] >= 0)
+    assert set(batches.val_ids) & set(batches.train_ids) == set()
+
+
+def test_train_cli_without_a_cache_is_a_clear_error(tmp_path, lmo_root, capsys):
+    code = main(['train', 'qnet', '--dataset', str(lmo_root), '--cache', str(tmp_path),
+                 '--run-dir', str(tmp_path / 'run'), '--steps', '1'])
+    assert code == 2
+    assert 'no training cache' in capsys.readouterr().err

@@ -1,0 +1,62 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The shipped weights on a few real LM-O frames: a documented accuracy floor.
+
+The floors sit well below what the shipped files measured on all 100 frames (see the numbers
+in the comments), so the test catches a broken or swapped weight file, not noise.
+"""
+
+import numpy as np
+import pytest
+
+from bbpose_ros.core.detection_eval import evaluate_detections
+from bbpose_ros.core.estimators import load_pipeline
+from bbpose_ros.core.evaluation import evaluate
+from bbpose_ros.core.pipeline import FrameResult
+
+FRAMES = 12
+
+# Measured with the shipped files (first CPU-only training session) on the 100 frames:
+# detector recall @ IoU 0.5 (visible fraction >= 0.3) 0.10, mean over objects (ape 0.41,
+# duck 0.40, others ~0); Q-Net median rotation error with ground-truth boxes 96.7 deg (a
+# random guess gives ~126 deg). Raise these floors when better weights ship.
+DETECTOR_RECALL_FLOOR = 0.02
+ROTATION_MEDIAN_CEILING_DEG = 115.0
+
+
+@pytest.fixture(scope='module')
+def pipeline(lmo_models):
+    return load_pipeline(lmo_models, threads=2)
+
+
+def test_pipeline_runs_on_a_real_frame(pipeline, lmo_frames):
+    frame = lmo_frames[0]
+    result = pipeline.estimate(frame.load_image(), frame.camera)
+    assert isinstance(result, FrameResult)
+    for pose in result.poses:
+        assert pose.rotation.shape == (3, 3) and np.all(np.isfinite(pose.translation))
+        np.testing.assert_allclose(pose.rotation @ pose.rotation.T, np.eye(3), atol=1e-6)
+
+
+def test_detector_recall_floor(pipeline, lmo_frames):
+    report = evaluate_detections(lmo_frames[:FRAMES], pipeline, progress=False)
+    assert report['mean']['recall_iou50_visib30'] >= DETECTOR_RECALL_FLOOR
+
+
+def test_rotation_error_floor_with_ground_truth_boxes(pipeline, lmo_frames):
+    report = evaluate(lmo_frames[:FRAMES], pipeline, boxes='gt', rotation='estimator',
+                      progress=False)
+    assert report['mean']['re_median_deg'] <= ROTATION_MEDIAN_CEILING_DEG
