@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export BBPOSE_DATASET := $(DATASET)
 
-.PHONY: setup system-deps test demo lint clean
+.PHONY: setup system-deps test demo lint clean photos
 
 setup: $(STAMP) system-deps
 
@@ -53,3 +53,11 @@ lint: setup
 
 clean:
 	rm -rf build install log $(OUT) .pytest_cache
+
+# Background photographs for training renders (`bbpose train render --backgrounds`):
+# Debian's wallpaper packages, unpacked outside the repository.
+PHOTOS ?= $(HOME)/.cache/bbpose/photos
+photos:
+	@mkdir -p $(PHOTOS) && cd $(PHOTOS) && apt-get download plasma-workspace-wallpapers \
+		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb
+	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"

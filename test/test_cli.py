@@ -20,6 +20,7 @@ from pathlib import Path
 import subprocess
 import sys
 
+from bbpose_ros.core.bop import BopDataset
 from bbpose_ros.core.evaluation import POSE_KEYS
 
 
@@ -43,6 +44,34 @@ def test_eval_with_ground_truth_boxes_and_rotations(lmo_root, tmp_path):
     assert report['mean']['te_median_mm'] < 10.0
     assert report['objects']['driller']['n'] == 10
     assert {'translation', 'total'} <= set(report['timing_ms'])
+
+
+def test_eval_with_the_detector_reports_detection_metrics(lmo_root, tmp_path):
+    frames = 5    # the 5th LM-O frame has an ape with visib_fract 0.06: not counted
+    out = tmp_path / 'report.json'
+    result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'detector', '--max-frames',
+                    frames, '--json', out)
+    assert result.returncode == 0, result.stderr
+    assert 'recall50' in result.stdout and 'AP50' in result.stdout
+    report = json.loads(out.read_text())
+    assert set(POSE_KEYS) <= set(report['mean'])       # the pose report's own mean is kept
+    detection = report['detection']
+    names = sorted(BopDataset(lmo_root).load_models())
+    assert len(names) == 8 and sorted(set(detection) - {'mean'}) == names
+    counted = dict.fromkeys(names, 0)
+    strict = dict.fromkeys(names, 0)
+    for frame in BopDataset(lmo_root).frames()[:frames]:
+        for instance in frame.instances:
+            counted[instance.object_name] += instance.visib_fract >= 0.1
+            strict[instance.object_name] += instance.visib_fract >= 0.3
+    assert counted['ape'] < frames    # the visibility cut is exercised
+    for name in names:
+        values = detection[name]
+        assert values['n'] == counted[name] and values['n_visib30'] == strict[name]
+        for key in ('recall_iou50', 'ap50', 'recall_iou50_visib30'):
+            assert 0.0 <= values[key] <= 1.0, (name, key, values[key])
+    for key in ('recall_iou50', 'ap50', 'recall_iou50_visib30'):
+        assert 0.0 <= detection['mean'][key] <= 1.0
 
 
 def test_make_bag_writes_a_bag(lmo_root, tmp_path):

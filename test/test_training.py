@@ -14,8 +14,6 @@
 
 """Training: a tiny run lowers the loss, checkpoints resume, batches are consistent."""
 
-from types import SimpleNamespace
-
 import numpy as np
 import torch
 
@@ -26,6 +24,7 @@ from bbpose_ros.core.nets.detector import decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import quat_wxyz_to_matrix
+from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
@@ -83,7 +82,8 @@ def _fake_cache(rng, scenes=2, per_scene=3):
     half = rng.uniform(20, 80, (count, 2))
     boxes = np.concatenate([centre - half, centre + half], axis=1)
     q = rng.normal(size=(count, 4))
-    return SimpleNamespace(
+    cache = TrainingCache.__new__(TrainingCache)
+    cache.__dict__.update(
         objects=list(OBJECTS), camera=CAMERA, input_size=(320, 240),
         images=rng.integers(0, 255, (scenes, 240, 320, 3), dtype=np.uint8),
         scene=np.repeat(np.arange(scenes), per_scene),
@@ -91,6 +91,7 @@ def _fake_cache(rng, scenes=2, per_scene=3):
         visib=np.ones(count), rotation=quat_wxyz_to_matrix(q),
         crop=rng.integers(0, 255, (count, 128, 128, 3), dtype=np.uint8),
         square=square_boxes(boxes, 2.0))
+    return cache
 
 
 def test_detector_targets_decode_to_the_boxes():

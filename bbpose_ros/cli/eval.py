@@ -19,6 +19,7 @@ from pathlib import Path
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
                                    add_objects_argument, write_json_atomic)
 from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.detection_eval import format_detection_report, score_detections
 from bbpose_ros.core.evaluation import evaluate, format_report
 from bbpose_ros.core.pipeline import PosePipeline
 
@@ -30,7 +31,8 @@ def add_parser(subparsers):
         description='Run the pipeline on the frames of a BOP dataset and score it: ADD(-S), '
                     '5 cm / 5 deg, 2D projection, rotation and translation errors per object. '
                     '--boxes gt and --rotation gt replace the learned stages by the ground '
-                    'truth, to isolate the Bounding Box Equation.')
+                    'truth, to isolate the Bounding Box Equation. With --boxes detector the '
+                    'report also scores the detector (recall and AP at IoU 0.5).')
     add_dataset_argument(parser)
     parser.add_argument('--boxes', choices=('gt', 'detector'), default='detector',
                         help='2D boxes from the ground truth (amodal bbox_obj) or the detector')
@@ -52,18 +54,50 @@ def build_pipeline(models, boxes, rotation):
     return load_pipeline(models)
 
 
+class RecordingDetector:
+    """
+    A detector callable that keeps the detections of each call, in call order.
+
+    With ``--boxes detector``, ``evaluate`` calls the pipeline's detector exactly once per
+    frame, in frame order, so what this records lines up with the frames and the detection
+    metrics need no second detector pass.
+    """
+
+    def __init__(self, detector):
+        self.detector = detector
+        self.calls = []
+
+    def __call__(self, image_rgb):
+        """Detect with the wrapped detector and record the result."""
+        detections = self.detector(image_rgb)
+        self.calls.append(detections)
+        return detections
+
+
 def run(args):
-    """Evaluate, print the table and write the JSON; returns the exit code."""
+    """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
     pipeline = build_pipeline(models, args.boxes, args.rotation)
+    recorder = None
+    if args.boxes == 'detector':
+        recorder = pipeline.detector = RecordingDetector(pipeline.detector)
     report = evaluate(frames, pipeline, boxes=args.boxes,
                       rotation='gt' if args.rotation == 'gt' else 'estimator',
                       min_visib=args.min_visib)
+    detection = None
+    if recorder is not None:
+        pipeline.detector = recorder.detector
+        detection = score_detections(frames, recorder.calls, list(models), args.min_visib)
+        report['detection'] = {**detection['detection'], 'mean': detection['mean']}
     report['config'] = {'dataset': str(args.dataset), 'boxes': args.boxes,
                         'rotation': args.rotation, 'min_visib': args.min_visib}
     print(format_report(report))
+    if detection is not None:
+        print(f'\ndetector, IoU >= 0.5, instances with visib_fract >= {args.min_visib} '
+              '(v30: >= 0.3)')
+        print(format_detection_report(detection))
     if args.json is not None:
         write_json_atomic(args.json, report)
         print(f'report written to {args.json}')

@@ -16,7 +16,9 @@
 ``bbpose train``: render a training cache, train the detector or Q-Net, run Fig. 3.
 
 * ``bbpose train render``: synthetic scenes -> a cache folder (outside the repository, e.g.
-  ~/.cache/bbpose/train), resumable.
+  ~/.cache/bbpose/train), resumable; the detector trains on it.
+* ``bbpose train render-crops``: object-centred Q-Net crops -> a crop cache folder
+  (``--cache``), resumable; Q-Net trains on either kind of cache.
 * ``bbpose train detector`` / ``bbpose train qnet``: train from the cache within a step and/or
   time budget; ``--run-dir`` holds checkpoint.pt (resumed), log.csv, train.log, loss.png and
   the weight file; ``--export`` copies the weight file (e.g. to bbpose_ros/weights/).
@@ -24,13 +26,16 @@
   initialisation and samples, losses in one plot.
 """
 
+import argparse
 import json
 import os
 from pathlib import Path
 
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.nets.qnet import QNetConfig
 
+QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 
@@ -45,7 +50,21 @@ def add_parser(subparsers):
     _common(render)
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
+    _backgrounds_option(render)
     render.set_defaults(func=run_render)
+
+    crops = sub.add_parser('render-crops', help='render a Q-Net crop cache')
+    _common(crops)
+    crops.add_argument('--crops', type=int, default=80000, help='crops to render')
+    crops.add_argument('--workers', type=int, default=2, help='rendering processes')
+    crops.add_argument('--crop-size', type=int, default=64,
+                       help='stored crop side (Q-Net resizes to its own)')
+    crops.add_argument('--context', type=float, default=1.2,
+                       help="crop side / longest box side (Q-Net's context)")
+    crops.add_argument('--box-sigma', type=float, default=0.06,
+                       help='box jitter: per-side error / box size')
+    _backgrounds_option(crops)
+    crops.set_defaults(func=run_render_crops)
 
     for stage, func in (('detector', run_detector), ('qnet', run_qnet)):
         stage_parser = sub.add_parser(stage, help=f'train the {stage}')
@@ -59,6 +78,17 @@ def add_parser(subparsers):
     _budget(fig3, steps=3000)
     _qnet_options(fig3)
     fig3.set_defaults(func=run_fig3)
+
+
+def _backgrounds_option(parser):
+    parser.add_argument('--backgrounds', type=Path, nargs='+', default=None, metavar='DIR',
+                        help='folders of photographs used as backgrounds 70%% of the time '
+                             '(default: procedural backgrounds only)')
+
+
+def _photos(args):
+    from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
+    return None if not args.backgrounds else PhotoBackgrounds.from_folders(args.backgrounds)
 
 
 def _common(parser):
@@ -98,6 +128,12 @@ def _qnet_options(parser):
                         help='a detector weight file: use its measured side_sigma')
     parser.add_argument('--sign-invariant', action='store_true',
                         help='loss (1 - |q.q_gt|) / 2 instead of the hemisphere rule alone')
+    parser.add_argument('--channels', type=_int_tuple, default=QNET_CHANNELS,
+                        help='widths of the conv + max-pool stages, comma separated '
+                             '(default %(default)s)')
+    parser.add_argument('--real-val', action='store_true',
+                        help="also validate on the dataset's real frames with ground-truth "
+                             'boxes (measured only, never trained on)')
 
 
 def _settings(settings, args):
@@ -110,7 +146,9 @@ def _settings(settings, args):
 def _load(args):
     from bbpose_ros.core.models import load_bop_models
     from bbpose_ros.core.training.cache import TrainingCache
-    cache = TrainingCache(args.cache, args.max_shards)
+    from bbpose_ros.core.training.crop_cache import CropCache, is_crop_cache
+    kind = CropCache if is_crop_cache(args.cache) else TrainingCache
+    cache = kind(args.cache, args.max_shards)
     models = load_bop_models(args.dataset, args.objects or cache.objects)
     return cache, models
 
@@ -123,8 +161,21 @@ def run_render(args):
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     camera = dataset.frames()[0].camera
-    build_cache(SyntheticScenes(models, camera, seed=args.seed), args.cache, args.scenes,
-                (320, 240), workers=args.workers)
+    scenes = SyntheticScenes(models, camera, seed=args.seed, backgrounds=_photos(args))
+    build_cache(scenes, args.cache, args.scenes, (320, 240), workers=args.workers)
+    return 0
+
+
+def run_render_crops(args):
+    """Render the Q-Net crop cache."""
+    from bbpose_ros.core.bop import BopDataset
+    from bbpose_ros.core.synth.crop_scenes import CropScenes
+    from bbpose_ros.core.training.crop_cache import build_crop_cache
+    dataset = BopDataset(args.dataset)
+    scenes = CropScenes(dataset.load_models(args.objects), dataset.frames()[0].camera,
+                        seed=args.seed, crop_size=args.crop_size, context=args.context,
+                        box_sigma=args.box_sigma, backgrounds=_photos(args))
+    build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
     return 0
 
 
@@ -145,7 +196,7 @@ def _qnet_setup(args):
     from bbpose_ros.core.nets.qnet import QNetConfig
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     cache, models = _load(args)
-    config = QNetConfig(tuple(models), crop_size=args.crop_size,
+    config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
                         rotation_target=args.rotation_target, sharing=args.sharing)
     settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant), args)
     if args.box_sigma_from is not None:
@@ -159,8 +210,13 @@ def run_qnet(args):
     """Train Q-Net."""
     from bbpose_ros.core.training.runs import train_qnet
     cache, models, config, settings = _qnet_setup(args)
+    real = None
+    if args.real_val:
+        from bbpose_ros.core.bop import BopDataset
+        from bbpose_ros.core.training.real_validation import RealCrops
+        real = RealCrops(BopDataset(args.dataset).frames(), config.objects, models)
     train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
-               args.seed, args.threads, args.export, args.every)
+               args.seed, args.threads, args.export, args.every, real_crops=real)
     return 0
 
 
@@ -172,6 +228,13 @@ def run_fig3(args):
                                          args.steps, args.seed, args.threads)
     print(json.dumps(summary, indent=1))
     return 0
+
+
+def _int_tuple(text):
+    try:
+        return tuple(int(x) for x in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected comma-separated integers, got {text!r}')
 
 
 def _seconds(args):

@@ -75,6 +75,19 @@ class CameraIntrinsics:
         return CameraIntrinsics(self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5,
                                 (self.cy + 0.5) * sy - 0.5, int(width), int(height))
 
+    def cropped(self, square_uv, size):
+        """
+        Intrinsics of the region ``square_uv`` resized to a size x size image.
+
+        ``square_uv`` is [u_min, v_min, u_max, v_max] (square, continuous pixels; its edges
+        become the crop's pixel edges): u' = (u - u_min) * s - 0.5 with s = size / side.
+        """
+        u_min, v_min, u_max, _ = (float(x) for x in square_uv)
+        scale = size / (u_max - u_min)
+        return CameraIntrinsics(self.fx * scale, self.fy * scale,
+                                (self.cx - u_min) * scale - 0.5,
+                                (self.cy - v_min) * scale - 0.5, int(size), int(size))
+
     def project(self, points_cam):
         """Project (..., 3) points in the camera frame (metres) to (..., 2) pixels (u, v)."""
         points_cam = np.asarray(points_cam, dtype=float)

@@ -19,7 +19,9 @@ Boxes are amodal [u_min, v_min, u_max, v_max] in continuous pixels, compared wit
 ground-truth ``bbox_obj`` boxes. Per object name, detections are matched greedily by score
 (``evaluation.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
 detection that only matches a less visible instance is ignored (neither hit nor false alarm).
-Recall is also given over the instances with visible fraction >= 0.3.
+Recall is also given over the instances with visible fraction >= 0.3. AP is computed over
+the detections the detector reports, so its score threshold (0.3 in ``load_pipeline``) cuts
+the precision-recall curve short.
 """
 
 import math
@@ -27,7 +29,7 @@ import math
 import numpy as np
 from tqdm import tqdm
 
-from bbpose_ros.core.evaluation import DETECTION_IOU, match_by_score
+from bbpose_ros.core.evaluation import DETECTION_IOU, match_by_score, mean_over_objects
 
 VISIB_STRICT = 0.3
 
@@ -57,20 +59,48 @@ def average_precision(scores, hits, positives):
 
 def evaluate_detections(frames, pipeline, min_visib=0.1, progress=True):
     """
-    Score ``pipeline.detector`` on BopFrames.
+    Run ``pipeline.detector`` on BopFrames and score it (see ``score_detections``).
 
     Returns:
         {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
-        'recall_iou50_visib30'}}, 'mean': {same keys averaged over objects}}.
+        'recall_iou50_visib30'}}, 'mean': {same keys but the counts, averaged over objects}}.
 
     """
-    names = list(pipeline.models)
+    detections = [pipeline.detector(frame.load_image())
+                  for frame in tqdm(frames, desc='detecting', unit='frame',
+                                    disable=not progress)]
+    return score_detections(frames, detections, list(pipeline.models), min_visib)
+
+
+def score_detections(frames, detections, names, min_visib=0.1):
+    """
+    Score detections already made, one list of Detection per BopFrame, for the given objects.
+
+    Args:
+        frames: BopFrame list.
+        detections: list (one per frame, same order) of lists of Detection; detections of
+            other objects than ``names`` are ignored.
+        names: object names to score.
+        min_visib: instances less visible than this are not counted.
+
+    Returns:
+        {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
+        'recall_iou50_visib30'}}, 'mean': {'recall_iou50', 'ap50', 'recall_iou50_visib30'}
+        averaged over the objects where they are defined}. ``n`` counts the instances with
+        visible fraction >= ``min_visib``, ``n_visib30`` those >= 0.3; a figure with no
+        instance to count is NaN.
+
+    Raises:
+        ValueError: not one list of detections per frame.
+
+    """
+    if len(detections) != len(frames):
+        raise ValueError(f'{len(detections)} lists of detections for {len(frames)} frames')
     found = {n: [] for n in names}       # per counted instance: (visib, hit)
     dets = {n: [] for n in names}        # per detection: (score, hit)
-    for frame in tqdm(frames, desc='detecting', unit='frame', disable=not progress):
-        detections = pipeline.detector(frame.load_image())
+    for frame, frame_detections in zip(frames, detections):
         for name in names:
-            _score_object(name, detections, frame.instances, min_visib, found[name],
+            _score_object(name, frame_detections, frame.instances, min_visib, found[name],
                           dets[name])
     per_object = {}
     for name in names:
@@ -85,9 +115,35 @@ def evaluate_detections(frames, pipeline, min_visib=0.1, progress=True):
             'n_visib30': int(strict.sum()),
             'recall_iou50_visib30': float(hit[strict].mean()) if strict.any() else math.nan,
         }
-    keys = ('recall_iou50', 'ap50', 'recall_iou50_visib30')
-    mean = {k: float(np.nanmean([v[k] for v in per_object.values()])) for k in keys}
-    return {'detection': per_object, 'mean': mean}
+    return {'detection': per_object,
+            'mean': mean_over_objects(per_object, ('recall_iou50', 'ap50',
+                                                   'recall_iou50_visib30'))}
+
+
+DETECTION_COLUMNS = (('n', 'n', '{:d}'), ('recall_iou50', 'recall50', '{:.3f}'),
+                     ('ap50', 'AP50', '{:.3f}'), ('n_visib30', 'n_vis30', '{:d}'),
+                     ('recall_iou50_visib30', 'recall50_v30', '{:.3f}'))
+
+
+def format_detection_report(report):
+    """Format the per-object detection table (``score_detections``' dict) with a mean row."""
+    header = (f'{"object":<12}'
+              + ''.join(f'{title:>13}' for _, title, _ in DETECTION_COLUMNS))
+    lines = [header, '-' * len(header)]
+    rows = list(report['detection'].items()) + [('mean', report['mean'])]
+    for name, values in rows:
+        cells = []
+        for key, _, fmt in DETECTION_COLUMNS:
+            value = values.get(key)
+            if isinstance(value, (int, float)) and math.isfinite(value):
+                text = fmt.format(int(value) if fmt == '{:d}' else value)
+            else:
+                text = '-'
+            cells.append(f'{text:>13}')
+        if name == 'mean':
+            lines.append('-' * len(header))
+        lines.append(f'{name:<12}' + ''.join(cells))
+    return '\n'.join(lines)
 
 
 def _score_object(name, detections, instances, min_visib, found, dets):

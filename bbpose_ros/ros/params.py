@@ -67,7 +67,9 @@ PARAMETERS = {
         'Most instances reported per object and frame.', int_range=(1, 100))),
     'device': ('cpu', _descriptor('Torch device of the networks: cpu, cuda or cuda:N.')),
     'torch_threads': (0, _descriptor(
-        'Torch CPU threads; 0: torch default (one per core).', int_range=(0, 256))),
+        'Torch CPU (intra-op) threads; 0: torch default (one per core); 1: a single thread, '
+        'leaving the other cores to DDS and the executor (best on 2 cores).',
+        int_range=(0, 256))),
     'qos_reliability': ('reliable', _descriptor(
         'Reliability of the image and camera_info subscriptions: reliable or best_effort.')),
     'qos_depth': (1, _descriptor(

@@ -133,21 +133,27 @@ class MeshRenderer:
         self._gl = None
         self._pid = None
 
-    def render(self, draws, lighting, full_mask_indices=()):
+    def render(self, draws, lighting, full_mask_indices=(), camera=None):
         """
         Draw ``draws`` (a sequence of ``Draw``) in one image under ``lighting``.
 
         ``full_mask_indices`` lists the draws whose full (unoccluded) silhouette is wanted.
-        Every draw must lie in front of the camera. Returns a ``RenderResult``.
+        Every draw must lie in front of the camera. ``camera`` replaces the renderer's
+        intrinsics for this image (same width and height), e.g. to render a crop of a larger
+        frame (``CameraIntrinsics.cropped``). Returns a ``RenderResult``.
         """
+        camera = self.camera if camera is None else camera
+        if (camera.width, camera.height) != (self.camera.width, self.camera.height):
+            raise InputError(f'render camera is {camera.width}x{camera.height}, the renderer '
+                             f'was made for {self.camera.width}x{self.camera.height}')
         if len(draws) > MAX_DRAWS:
             raise InputError(f'at most {MAX_DRAWS} meshes per image, got {len(draws)}')
         unknown = sorted({draw.mesh for draw in draws} - set(self.meshes))
         if unknown:
             raise InputError(f'unknown mesh name(s): {", ".join(unknown)}')
         gl = self._context()
-        rgb, ids = gl.render_shaded(draws, lighting)
-        boxes = [projected_box_uv(self.camera, self.meshes[draw.mesh].hull_points,
+        rgb, ids = gl.render_shaded(draws, lighting, camera)
+        boxes = [projected_box_uv(camera, self.meshes[draw.mesh].hull_points,
                                   draw.rotation, draw.translation) for draw in draws]
         full_masks, counts = {}, {}
         for index in full_mask_indices:
@@ -155,8 +161,8 @@ class MeshRenderer:
                 full_masks[index] = ids == index + 1
                 counts[index] = int(np.count_nonzero(full_masks[index]))
             else:
-                full_masks[index], counts[index] = gl.render_silhouette(draws[index],
-                                                                        boxes[index])
+                full_masks[index], counts[index] = gl.render_silhouette(
+                    draws[index], boxes[index], camera)
         return RenderResult(rgb, ids, full_masks, counts)
 
     def _is_unoccluded_and_inside(self, index, boxes):
@@ -192,14 +198,12 @@ class _GlState:
             raise RuntimeError(
                 f'cannot create a headless OpenGL (EGL) context: {err}. Install the system '
                 'packages libegl1 and libgl1 (Mesa llvmpipe renders on the CPU).') from err
-        self.camera = camera
         self.near, self.far = near, far
         ctx = self.ctx
         self.shaded = ctx.program(vertex_shader=shaders.SHADED_VERTEX,
                                   fragment_shader=shaders.SHADED_FRAGMENT)
         self.silhouette = ctx.program(vertex_shader=shaders.SILHOUETTE_VERTEX,
                                       fragment_shader=shaders.SILHOUETTE_FRAGMENT)
-        self.shaded['u_projection'].write(_gl_matrix(opengl_projection(camera, near, far)))
         self.vaos = {}
         for name, mesh in meshes.items():
             vbo = ctx.buffer(np.hstack([mesh.vertices, mesh.normals, mesh.colors])
@@ -225,9 +229,11 @@ class _GlState:
         """Free the context and everything made in it."""
         self.ctx.release()
 
-    def render_shaded(self, draws, lighting):
+    def render_shaded(self, draws, lighting, camera):
         """Shaded colours (H, W, 3) and instance ids (H, W) of all draws, fresh arrays."""
         ctx, program = self.ctx, self.shaded
+        program['u_projection'].write(_gl_matrix(opengl_projection(camera, self.near,
+                                                                   self.far)))
         self.frame.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
@@ -246,14 +252,13 @@ class _GlState:
         self.frame.read_into(self.ids, components=1, attachment=1, alignment=1)
         return self.rgb.copy(), self.ids.copy()
 
-    def render_silhouette(self, draw, box_uv):
+    def render_silhouette(self, draw, box_uv, camera):
         """
         Render the unoccluded silhouette of one draw whose amodal box is ``box_uv``.
 
         Rendered in a window around the box, so parts outside the image count too. Returns
         the (H, W) bool mask inside the image and the whole silhouette's pixel count.
         """
-        camera = self.camera
         # Pixels whose centres can be inside the box, one pixel of margin each side.
         col0, row0 = math.ceil(box_uv[0]) - 1, math.ceil(box_uv[1]) - 1
         width = min(math.floor(box_uv[2]) + 2 - col0, self.window_size[0])

@@ -12,10 +12,14 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Procedural background images: gradients, smooth noise, stripes, plus random shapes."""
+"""Background images: photographs or procedural patterns, plus random shapes."""
+
+from pathlib import Path
 
 import cv2
 import numpy as np
+
+from bbpose_ros.core.errors import InputError
 
 
 def _gradient(rng, height, width):
@@ -76,11 +80,81 @@ def _draw_shapes(rng, image, count):
             cv2.fillPoly(image, [points.astype(np.int32)], color, cv2.LINE_AA)
 
 
-def random_background(rng, height, width):
-    """Make a random (height, width, 3) uint8 RGB background."""
-    base = (_gradient, _smooth_noise, _stripes)[rng.integers(3)](rng, height, width)
-    image = np.clip(base, 0, 255).astype(np.uint8)
-    _draw_shapes(rng, image, int(rng.integers(0, 40)))
+class PhotoBackgrounds:
+    """
+    Random regions of photographs, as backgrounds: real clutter that procedural ones lack.
+
+    ``paths`` are image files (JPEG, PNG, WebP); they are read lazily, once per process, and
+    shrunk to at most ``max_side`` pixels. Any folder of photographs works, e.g. Debian's
+    wallpaper packages (see bbpose_ros/weights/README.md).
+    """
+
+    SUFFIXES = ('.jpg', '.jpeg', '.png', '.webp')
+
+    def __init__(self, paths, max_side=800):
+        self.paths = sorted(str(p) for p in paths)
+        if not self.paths:
+            raise InputError('no background photographs given')
+        self.max_side = max_side
+        self._images = None
+
+    @classmethod
+    def from_folders(cls, folders):
+        """Collect every photograph under ``folders`` (recursively)."""
+        paths = [p for folder in folders for p in Path(folder).rglob('*')
+                 if p.suffix.lower() in cls.SUFFIXES]
+        if not paths:
+            raise InputError(f'no .jpg/.png/.webp images under {", ".join(map(str, folders))}')
+        return cls(paths)
+
+    def __getstate__(self):
+        """Pickle the paths only; each process reads the images itself."""
+        state = self.__dict__.copy()
+        state['_images'] = None
+        return state
+
+    def region(self, rng, height, width):
+        """(height, width, 3) uint8 RGB: a random region of a random photograph."""
+        if self._images is None:
+            self._images = [self._read(path) for path in self.paths]
+        photo = self._images[rng.integers(len(self._images))]
+        rows, cols = photo.shape[:2]
+        scale = rng.uniform(0.15, 1.0) * min(rows / height, cols / width)
+        h, w = max(int(height * scale), 8), max(int(width * scale), 8)
+        h, w = min(h, rows), min(w, cols)
+        top, left = rng.integers(0, rows - h + 1), rng.integers(0, cols - w + 1)
+        region = photo[top:top + h, left:left + w]
+        if rng.random() < 0.5:
+            region = region[:, ::-1]
+        return cv2.resize(np.ascontiguousarray(region), (width, height),
+                          interpolation=cv2.INTER_AREA)
+
+    def _read(self, path):
+        image = cv2.imread(path, cv2.IMREAD_COLOR)
+        if image is None:
+            raise InputError(f'cannot read background image {path}')
+        scale = self.max_side / max(image.shape[:2])
+        if scale < 1:
+            image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def random_background(rng, height, width, photos=None, photo_probability=0.7):
+    """
+    Make a random (height, width, 3) uint8 RGB background.
+
+    With ``photos`` (a PhotoBackgrounds), a photograph's region is the base with
+    ``photo_probability``, else a procedural pattern; random shapes go on top of either.
+    """
+    if photos is not None and rng.random() < photo_probability:
+        image = photos.region(rng, height, width)
+        _draw_shapes(rng, image, int(rng.integers(0, 6)))
+    else:
+        base = (_gradient, _smooth_noise, _stripes)[rng.integers(3)](rng, height, width)
+        image = np.clip(base, 0, 255).astype(np.uint8)
+        _draw_shapes(rng, image, int(rng.integers(0, 40)))
     if rng.random() < 0.5:
         image = cv2.GaussianBlur(image, (0, 0), rng.uniform(0.5, 3.0))
-    return image
+    # Real backgrounds are far less saturated than random colours: mix towards grey.
+    gray = image.mean(axis=2, keepdims=True)
+    return (gray + (image - gray) * rng.uniform(0.0, 1.0)).astype(np.uint8)

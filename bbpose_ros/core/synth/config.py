@@ -26,14 +26,17 @@ class SynthConfig:
 
     Poses: the model origin lies at ``distance_range`` metres from the camera, on the ray
     through a pixel drawn uniformly from the image grown by ``frame_margin`` (a fraction of
-    its width and height, so objects may be cut by the border). The camera looks from an
+    its width and height, so objects may be cut by the border; negative keeps them inside
+    it). The camera looks from an
     elevation in ``elevation_range_deg`` above the model's x-y plane (LineMod models stand on
     it, z up), any azimuth and any in-plane rotation. ``cluster_probability`` is the chance
     that a target is put next to an earlier one, ``occluder_probability`` the chance that a
     distractor is put in front of a target. Distractor shapes are ``shape_size_range``
     metres across; ``shape_count`` shapes are made per generator.
 
-    Light: ambient and diffuse intensities, and per-object RGB colour gains.
+    Light: ambient and diffuse intensities, and per-object RGB colour gains. Ambient light
+    dominates: LM-O's vertex colours have the studio light baked in, and real LM-O crops
+    look flat and bright next to strongly shaded renders.
 
     Camera effects (images in 0..255): brightness offset, contrast and saturation factors,
     Gaussian blur of sigma ``blur_sigma_range`` pixels with ``blur_probability``, Gaussian
@@ -45,14 +48,14 @@ class SynthConfig:
     elevation_range_deg: tuple = (-15.0, 90.0)
     frame_margin: float = 0.05
     targets_per_image: tuple = (4, 8)
-    distractors_per_image: tuple = (2, 6)
-    cluster_probability: float = 0.25
+    distractors_per_image: tuple = (1, 4)
+    cluster_probability: float = 0.15
     occluder_probability: float = 0.2
     shape_size_range: tuple = (0.03, 0.15)
     shape_count: int = 24
-    ambient_range: tuple = (0.2, 0.6)
-    diffuse_range: tuple = (0.4, 1.0)
-    color_gain_range: tuple = (0.8, 1.2)
+    ambient_range: tuple = (0.45, 0.95)
+    diffuse_range: tuple = (0.1, 0.7)
+    color_gain_range: tuple = (0.85, 1.15)
     brightness_range: tuple = (-25.0, 25.0)
     contrast_range: tuple = (0.75, 1.25)
     saturation_range: tuple = (0.7, 1.3)
@@ -75,5 +78,5 @@ class SynthConfig:
                              f'{self.distance_range}')
         if self.targets_per_image[0] < 1 or self.distractors_per_image[0] < 0:
             raise InputError('synth config needs at least one target and no negative counts')
-        if self.shape_count < 1 or self.frame_margin < 0.0:
-            raise InputError('synth config shape_count must be >= 1, frame_margin >= 0')
+        if self.shape_count < 1 or not -0.5 < self.frame_margin:
+            raise InputError('synth config shape_count must be >= 1, frame_margin > -0.5')

@@ -103,11 +103,13 @@ class SyntheticScenes:
     ``models`` {name: ObjectModel} are the targets (labelled); ``distractor_models`` {name:
     ObjectModel} are other meshes that appear unlabelled, next to random primitive shapes.
     ``camera`` is a ``CameraIntrinsics``; ``seed`` a non-negative int; ``config`` a
-    ``SynthConfig`` (default settings when None). The renderer is made lazily, in the
+    ``SynthConfig`` (default settings when None); ``backgrounds`` a ``PhotoBackgrounds``
+    (None: procedural backgrounds only). The renderer is made lazily, in the
     process that draws the first sample, so instances may be passed to worker processes.
     """
 
-    def __init__(self, models, camera, seed=0, config=None, distractor_models=None):
+    def __init__(self, models, camera, seed=0, config=None, distractor_models=None,
+                 backgrounds=None):
         if not models:
             raise InputError('synthetic scenes need at least one target object model')
         distractor_models = dict(distractor_models or {})
@@ -120,6 +122,7 @@ class SyntheticScenes:
         self.camera = camera
         self.seed = int(seed)
         self.config = config if config is not None else SynthConfig()
+        self.backgrounds = backgrounds
         self.target_names = list(models)
         meshes = {f'target/{name}': RenderMesh.from_object_model(model)
                   for name, model in models.items()}
@@ -155,7 +158,8 @@ class SyntheticScenes:
                             rng.uniform(*config.ambient_range),
                             rng.uniform(*config.diffuse_range))
         rendered = self.renderer.render(draws, lighting, range(len(targets)))
-        image = random_background(rng, self.camera.height, self.camera.width)
+        image = random_background(rng, self.camera.height, self.camera.width,
+                                  self.backgrounds)
         covered = rendered.instance_ids > 0
         image[covered] = rendered.rgb[covered]
         image = apply_camera_effects(rng, image, config)

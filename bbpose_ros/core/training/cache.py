@@ -41,6 +41,7 @@ from tqdm import tqdm
 from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
+from bbpose_ros.core.training.augment import jitter_boxes
 
 SHARD_SIZE = 250
 CROP_SIZE = 128
@@ -95,24 +96,46 @@ def build_cache(scenes, cache_dir, count, input_size, workers=2, progress=True):
             'camera': [camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
                        camera.height],
             'input_size': list(input_size), 'crop_size': CROP_SIZE,
-            'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE}
+            'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE,
+            'background_photos': photo_count(scenes)}
+    render_shards(cache_dir, meta, count, SHARD_SIZE, _init_worker,
+                  (scenes, tuple(input_size)), _render, _write_shard, 'scene', workers, progress)
+
+
+def render_shards(cache_dir, meta, count, shard_size, init_worker, init_args, render,
+                  write_shard, unit, workers, progress):
+    """
+    Render ``count`` items into shard files of ``cache_dir`` in worker processes (resumable).
+
+    ``meta`` is written to ``meta.json`` (an existing, different one is an error); each
+    worker runs ``init_worker(*init_args)``, then ``render(index)`` per item; the results of
+    a shard are written by ``write_shard(path, results)`` (atomically). Shards already on
+    disk are skipped, so an interrupted build resumes.
+    """
     meta_path = cache_dir / 'meta.json'
     if meta_path.is_file() and json.loads(meta_path.read_text()) != meta:
         raise InputError(f'cache {cache_dir} was built with other settings ({meta_path})')
     meta_path.write_text(json.dumps(meta, indent=1))
-    shards = -(-count // SHARD_SIZE)
+    shards = -(-count // shard_size)
     todo = [s for s in range(shards) if not _shard_path(cache_dir, s).is_file()]
-    context = multiprocessing.get_context('fork')
-    with context.Pool(workers, _init_worker, (scenes, tuple(input_size))) as pool, \
-            tqdm(total=len(todo) * SHARD_SIZE, desc='rendering', unit='scene',
+    # Spawned, not forked: EGL does not survive a fork of a process that has rendered.
+    # Each worker makes its own GL context lazily.
+    context = multiprocessing.get_context('spawn')
+    with context.Pool(workers, init_worker, init_args) as pool, \
+            tqdm(total=len(todo) * shard_size, desc='rendering', unit=unit,
                  disable=not progress) as bar:
         for shard in todo:
-            indices = range(shard * SHARD_SIZE, (shard + 1) * SHARD_SIZE)
+            indices = range(shard * shard_size, (shard + 1) * shard_size)
             results = []
-            for result in pool.imap(_render, indices, chunksize=4):
+            for result in pool.imap(render, indices, chunksize=4):
                 results.append(result)
                 bar.update()
-            _write_shard(_shard_path(cache_dir, shard), results)
+            write_shard(_shard_path(cache_dir, shard), results)
+
+
+def photo_count(scenes):
+    """Count the background photographs of a scene source (0: procedural only)."""
+    return 0 if scenes.backgrounds is None else len(scenes.backgrounds.paths)
 
 
 def _shard_path(cache_dir, shard):
@@ -167,3 +190,27 @@ class TrainingCache:
         for key in parts[0]:
             setattr(self, key, np.concatenate([p[key] for p in parts]))
         self.shards = len(paths)
+
+    def held_out(self, fraction):
+        """(m,) bool: instances of the last ``fraction`` of the scenes (validation)."""
+        return self.scene >= int(len(self.images) * (1 - fraction))
+
+    def input_crops(self, ids, rng, box_sigma, size, context):
+        """
+        Q-Net inputs of instances ``ids``: their boxes jittered, cut as the estimator cuts.
+
+        Returns (n, size, size, 3) uint8 crops and the (n, 4) jittered boxes (full-frame
+        continuous pixels) they are centred on.
+        """
+        boxes = jitter_boxes(self.box_uv[ids], rng, box_sigma)
+        squares = square_boxes(boxes, context)
+        crops = np.stack([extract_crops(self.crop[i], self._in_stored_crop(i, square), size)[0]
+                          for i, square in zip(ids, squares)])
+        return crops, boxes
+
+    def _in_stored_crop(self, index, square):
+        """Map a full-frame square (4,) into the pixel coordinates of stored crop ``index``."""
+        stored = self.square[index]
+        scale = self.crop.shape[1] / (stored[2] - stored[0])
+        origin = np.array([stored[0], stored[1]] * 2)
+        return (np.asarray(square) - origin) * scale - 0.5

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, square_boxes
+from bbpose_ros.core.nets.crops import box_centre_rays
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
-from bbpose_ros.core.training.augment import jitter_boxes, photometric
+from bbpose_ros.core.training.augment import photometric
 
 
 @dataclass
@@ -53,10 +53,11 @@ class QNetTrainSettings:
 
 class QNetBatches:
     """
-    Draws Q-Net training batches from a TrainingCache.
+    Draws Q-Net training batches from a TrainingCache or a CropCache.
 
     Args:
-        cache: TrainingCache.
+        cache: TrainingCache (crops cut from rendered scenes, jittered per draw) or CropCache
+            (crops rendered around already jittered boxes).
         config: QNetConfig of the network (objects, crop size, context, target).
         models: {name: ObjectModel} for the symmetry transforms.
         settings: QNetTrainSettings.
@@ -70,11 +71,10 @@ class QNetBatches:
         net_index = np.full(len(cache.objects), -1)
         net_index[cache_index] = np.arange(len(cache_index))
         self.net_index = net_index[cache.object]
-        scenes = len(cache.images)
-        val_start = int(scenes * (1 - settings.val_fraction))
+        held_out = cache.held_out(settings.val_fraction)
         usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)
-        self.train_ids = np.flatnonzero(usable & (cache.scene < val_start))
-        self.val_ids = np.flatnonzero(usable & (cache.scene >= val_start))
+        self.train_ids = np.flatnonzero(usable & ~held_out)
+        self.val_ids = np.flatnonzero(usable & held_out)
         self.symmetries, self.symmetry_valid = symmetry_rotations(
             [models[n] for n in config.objects])
         self.rng = np.random.default_rng(seed)
@@ -88,13 +88,7 @@ class QNetBatches:
     def make(self, ids, rng, box_sigma, augment):
         """Build a batch of the instances ``ids`` with the given jitter and augmentation."""
         cache, config = self.cache, self.config
-        boxes = jitter_boxes(cache.box_uv[ids], rng, box_sigma)
-        squares = square_boxes(boxes, config.context)
-        crops = np.stack([
-            extract_crops(cache.crop[i], _into_stored_crop(square, cache.square[i],
-                                                           cache.crop.shape[1]),
-                          config.crop_size)[0]
-            for i, square in zip(ids, squares)])
+        crops, boxes = cache.input_crops(ids, rng, box_sigma, config.crop_size, config.context)
         images = torch.from_numpy(crops).permute(0, 3, 1, 2).float().div_(255.0)
         if augment > 0:
             images = photometric(images, self.generator, augment)
@@ -128,13 +122,6 @@ def symmetry_rotations(models):
         rotations[k, :len(transforms)] = transforms[:, :3, :3]
         valid[k, :len(transforms)] = True
     return rotations, valid
-
-
-def _into_stored_crop(square, stored_square, stored_size):
-    """Map a full-frame square (4,) into the pixel coordinates of a stored crop."""
-    scale = stored_size / (stored_square[2] - stored_square[0])
-    origin = np.array([stored_square[0], stored_square[1]] * 2)
-    return (np.asarray(square) - origin) * scale - 0.5
 
 
 def qnet_step(network, optimizer, batches):

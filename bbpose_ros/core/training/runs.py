@@ -78,12 +78,13 @@ def _validated(validate, store):
 
 
 def train_qnet(cache, models, config, settings, run_dir, steps, seconds=None, seed=0,
-               threads=None, export=None, every=500, progress=True):
+               threads=None, export=None, every=500, progress=True, real_crops=None):
     """
-    Train (or resume) a Q-Net on a TrainingCache; returns the network.
+    Train (or resume) a Q-Net on a TrainingCache or CropCache; returns the network.
 
     ``config`` is a QNetConfig, ``settings`` a QNetTrainSettings; budgets as in
     ``loop.run_loop``. The weight file is written to ``run_dir/qnet.pt`` (and ``export``).
+    ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation.
     """
     _prepare(run_dir, seed, threads)
     network = QNet(config).to(memory_format=torch.channels_last)
@@ -93,14 +94,22 @@ def train_qnet(cache, models, config, settings, run_dir, steps, seconds=None, se
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
-                'cache_objects': cache.objects, 'cache_scenes': int(len(cache.images))}
+                'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
     run_loop(run_dir, network, optimizer, lambda step: qnet_step(network, optimizer, batches),
              steps, seconds, settings.lr,
-             validate=_validated(lambda: qnet_validation(network, batches), validation),
+             validate=_validated(lambda: _qnet_figures(network, batches, real_crops),
+                                 validation),
              every=every, on_checkpoint=_exporter(run_dir, network, 'qnet', training, export,
                                                   validation),
              progress=progress)
     return network
+
+
+def _qnet_figures(network, batches, real_crops):
+    figures = qnet_validation(network, batches)
+    if real_crops is not None:
+        figures.update(real_crops.figures(network))
+    return figures
 
 
 def train_detector(cache, config, settings, run_dir, steps, seconds=None, seed=0,

@@ -1,0 +1,150 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A rendered set of Q-Net crops on disk (``CropScenes`` samples), in resumable shards.
+
+A shard ``shard_NNNNN.npz`` holds, per crop: ``crop`` (n, S, S, 3) uint8, ``object`` (n,)
+index into the cache's objects, ``box_uv`` (n, 4) amodal box and ``input_box_uv`` (n, 4)
+jittered box the crop is centred on (full-frame continuous pixels), ``visib`` (n,),
+``rotation`` (n, 3, 3) egocentric model-to-camera, ``translation`` (n, 3) metres.
+``meta.json`` records objects, camera, seed, crop size, context and box jitter.
+"""
+
+from functools import partial
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.training.cache import photo_count, render_shards
+
+SHARD_SIZE = 2000
+
+_WORKER = {}
+
+
+def _init_worker(scenes):
+    _WORKER['scenes'] = scenes
+
+
+def _render(index):
+    return _WORKER['scenes'].sample(index)
+
+
+def _write_shard(names, path, samples):
+    arrays = {
+        'crop': np.stack([s.image_rgb for s in samples]),
+        'object': np.array([names.index(s.object_name) for s in samples]),
+        'box_uv': np.stack([s.box_uv for s in samples]).astype(np.float32),
+        'input_box_uv': np.stack([s.input_box_uv for s in samples]).astype(np.float32),
+        'visib': np.array([s.visib_fract for s in samples], np.float32),
+        'rotation': np.stack([s.rotation for s in samples]).astype(np.float32),
+        'translation': np.stack([s.translation for s in samples]).astype(np.float32),
+    }
+    tmp = path.with_name(path.stem + '.partial.npz')
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def build_crop_cache(scenes, cache_dir, count, workers=2, progress=True,
+                     shard_size=SHARD_SIZE):
+    """
+    Render ``count`` crops of a CropScenes into ``cache_dir`` (resumable, whole shards).
+
+    Args:
+        scenes: CropScenes (targets = the cache's objects).
+        cache_dir: output folder (created).
+        count: number of crops; rounded up to whole shards of ``shard_size``.
+        workers: rendering processes (each makes its own GL context).
+        progress: show a tqdm bar.
+        shard_size: crops per shard file.
+
+    """
+    cache_dir = Path(cache_dir)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    camera = scenes.camera
+    meta = {'kind': 'qnet_crops', 'objects': scenes.target_names, 'seed': scenes.seed,
+            'camera': [camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                       camera.height],
+            'crop_size': scenes.crop_size, 'context': scenes.context,
+            'box_sigma': scenes.box_sigma, 'min_visib': scenes.min_visib,
+            'shard_size': shard_size,
+            'background_photos': photo_count(scenes)}
+    render_shards(cache_dir, meta, count, shard_size, _init_worker, (scenes,), _render,
+                  partial(_write_shard, scenes.target_names), 'crop', workers, progress)
+
+
+def is_crop_cache(cache_dir):
+    """Tell whether ``cache_dir`` holds a crop cache (rather than a scene cache)."""
+    meta_path = Path(cache_dir) / 'meta.json'
+    return meta_path.is_file() and json.loads(meta_path.read_text()).get('kind') == 'qnet_crops'
+
+
+class CropCache:
+    """
+    All shards of a crop cache folder, loaded into memory and concatenated.
+
+    Attributes:
+        objects: object names (index = ``object`` values).
+        camera: CameraIntrinsics of the full frames the crops were cut from.
+        crop_size: side of the stored crops; context: crop side / longest input-box side.
+        Per-crop arrays as in the module docstring.
+
+    """
+
+    def __init__(self, cache_dir, max_shards=None):
+        cache_dir = Path(cache_dir)
+        meta_path = cache_dir / 'meta.json'
+        if not meta_path.is_file():
+            raise InputError(f'no crop cache in {cache_dir} (missing meta.json); build it '
+                             'with "bbpose train render-crops"')
+        meta = json.loads(meta_path.read_text())
+        if meta.get('kind') != 'qnet_crops':
+            raise InputError(f'{meta_path} is not a Q-Net crop cache (field "kind")')
+        self.objects = list(meta['objects'])
+        self.camera = CameraIntrinsics(*meta['camera'][:4], *map(int, meta['camera'][4:]))
+        self.crop_size = int(meta['crop_size'])
+        self.context = float(meta['context'])
+        self.box_sigma = float(meta['box_sigma'])
+        paths = sorted(cache_dir.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
+        if not paths:
+            raise InputError(f'crop cache {cache_dir} has no shards yet')
+        parts = [dict(np.load(p)) for p in paths]
+        for key in parts[0]:
+            setattr(self, key, np.concatenate([p[key] for p in parts]))
+        self.shards = len(paths)
+
+    def held_out(self, fraction):
+        """(m,) bool: the last ``fraction`` of the crops (validation)."""
+        return np.arange(len(self.visib)) >= int(len(self.visib) * (1 - fraction))
+
+    def input_crops(self, ids, rng, box_sigma, size, context):
+        """
+        Return stored crops ``ids`` resized to ``size`` and the (n, 4) boxes of their centres.
+
+        The box jitter was drawn at rendering (``box_sigma`` in meta.json), so ``rng`` and
+        ``box_sigma`` are unused; ``context`` must be the cache's.
+        """
+        if abs(context - self.context) > 1e-6:
+            raise InputError(f'crop cache has context {self.context}, the network wants '
+                             f'{context}; render a cache with that context')
+        crops = self.crop[ids]
+        if size != self.crop_size:
+            crops = np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA)
+                              for c in crops])
+        return crops, self.input_box_uv[ids].astype(float)

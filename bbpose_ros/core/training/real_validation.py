@@ -1,0 +1,74 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Q-Net on real frames with ground-truth boxes: the sim-to-real figure, watched while training.
+
+The crops are cut once, exactly as ``QNetRotationEstimator`` cuts them; the error is the
+rotation error (degrees) to the closest symmetric equivalent of the ground truth, as in
+``metrics.cm_deg_errors``. These frames only measure: nothing here feeds the optimiser.
+"""
+
+import numpy as np
+import torch
+
+from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.pipeline import Detection
+
+
+class RealCrops:
+    """
+    The ground-truth instances of some real frames, for one Q-Net configuration.
+
+    Args:
+        frames: BopFrame sequence.
+        objects: names the network knows; other instances are skipped.
+        models: {name: ObjectModel}, for the symmetry transforms.
+        min_visib: smallest visible fraction kept (0.1 as in ``bbpose eval``).
+
+    """
+
+    def __init__(self, frames, objects, models, min_visib=0.1):
+        self.items = []
+        for frame in frames:
+            instances = [i for i in frame.instances
+                         if i.object_name in objects and i.visib_fract >= min_visib]
+            if instances:
+                self.items.append((frame, frame.load_image(), instances))
+        self.symmetries = {name: models[name].symmetry_transforms[:, :3, :3]
+                           for name in objects}
+
+    def __len__(self):
+        return sum(len(instances) for _, _, instances in self.items)
+
+    def rotation_errors(self, network):
+        """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
+        estimate = QNetRotationEstimator(network)
+        errors = []
+        with torch.inference_mode():
+            for frame, image, instances in self.items:
+                detections = [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
+                rotations = estimate(image, frame.camera, detections)
+                for rotation, instance in zip(rotations, instances):
+                    candidates = instance.rotation @ self.symmetries[instance.object_name]
+                    cos = (np.einsum('ij,kij->k', rotation, candidates) - 1) / 2
+                    errors.append(np.degrees(np.arccos(np.clip(cos, -1, 1))).min())
+        return np.array(errors)
+
+    def figures(self, network):
+        """Median rotation error (deg) and the shares under 15 and 30 deg, for the log."""
+        errors = self.rotation_errors(network)
+        return {'real_median_deg': float(np.median(errors)),
+                'real_acc15': float(np.mean(errors < 15)),
+                'real_acc30': float(np.mean(errors < 30))}
