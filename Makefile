@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export BBPOSE_DATASET := $(DATASET)
 
-.PHONY: setup system-deps test demo lint clean photos
+.PHONY: setup system-deps test demo lint clean photos weights
 
 setup: $(STAMP) system-deps
 
@@ -55,9 +55,31 @@ clean:
 	rm -rf build install log $(OUT) .pytest_cache
 
 # Background photographs for training renders (`bbpose train render --backgrounds`):
-# Debian's wallpaper packages, unpacked outside the repository.
-PHOTOS ?= $(HOME)/.cache/bbpose/photos
+# Debian's wallpaper packages, unpacked outside the repository (once).
+CACHE ?= $(HOME)/.cache/bbpose
+PHOTOS ?= $(CACHE)/photos
 photos:
-	@mkdir -p $(PHOTOS) && cd $(PHOTOS) && apt-get download plasma-workspace-wallpapers \
-		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb
+	@if [ -z "$$(find $(PHOTOS) -name '*.jpg' 2>/dev/null | head -1)" ]; then \
+		mkdir -p $(PHOTOS) && cd $(PHOTOS) && apt-get download plasma-workspace-wallpapers \
+		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb; fi
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
+
+# Reproduce the shipped weights (hours on 2 CPU cores; every stage resumes if interrupted).
+# Caches and runs live in $(CACHE); see bbpose_ros/weights/README.md.
+weights: setup photos
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes --seed 2 \
+		--scenes 4000 --backgrounds $(PHOTOS)
+	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes \
+		--run-dir $(CACHE)/runs/detector --steps 40000 --every 1000 \
+		--export bbpose_ros/weights/detector.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops --seed 1 \
+		--crops 80000
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \
+		--seed 2 --crops 40000 --backgrounds $(PHOTOS)
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
+		--run-dir $(CACHE)/runs/qnet --rotation-target allocentric --sign-invariant \
+		--steps 60000 --every 1000 --threads 1 --real-val
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
+		--extra-cache $(CACHE)/crops_photos --run-dir $(CACHE)/runs/qnet \
+		--rotation-target allocentric --sign-invariant --steps 75000 --every 1000 \
+		--threads 1 --real-val --export bbpose_ros/weights/qnet.pt

@@ -14,11 +14,15 @@
 
 """Object-centred Q-Net crops: crop cameras, ground truth, the crop cache, real validation."""
 
+import json
+import shutil
+
 import numpy as np
 import pytest
 import torch
 
 from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.render import mask_box_uv, projected_box_uv
@@ -109,6 +113,22 @@ def test_crop_cache_feeds_qnet_batches(crop_scenes, lmo_models, tmp_path):
     # eggbox has two symmetric equivalents, the others one.
     eggbox = index == TARGETS.index('eggbox')
     assert torch.all(valid[eggbox].sum(dim=1) == 2) and torch.all(valid[~eggbox].sum(1) == 1)
+
+
+def test_crop_caches_combine_and_refuse_mismatches(crop_scenes, tmp_path):
+    first, second = tmp_path / 'a', tmp_path / 'b'
+    build_crop_cache(crop_scenes, first, 4, workers=1, progress=False, shard_size=4)
+    shutil.copytree(first, second)
+    both = CropCache([first, second])
+    assert len(both.visib) == 8 and list(both.folder) == [0] * 4 + [1] * 4
+    assert list(np.flatnonzero(both.held_out(0.25))) == [3, 7]   # the last of each folder
+    meta = json.loads((second / 'meta.json').read_text())
+    meta['crop_size'] = 32
+    (second / 'meta.json').write_text(json.dumps(meta))
+    with pytest.raises(InputError, match='"crop_size" differs'):
+        CropCache([first, second])
+    with pytest.raises(InputError, match='no crop cache'):
+        CropCache([first, tmp_path / 'missing'])
 
 
 def test_real_crops_score_a_network_on_real_frames(lmo_frames, lmo_models):

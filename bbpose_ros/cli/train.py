@@ -131,6 +131,9 @@ def _qnet_options(parser):
     parser.add_argument('--channels', type=_int_tuple, default=QNET_CHANNELS,
                         help='widths of the conv + max-pool stages, comma separated '
                              '(default %(default)s)')
+    parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
+                        help='more crop caches to train on, with the same objects, camera, '
+                             'crop size and context as --cache')
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
@@ -147,8 +150,13 @@ def _load(args):
     from bbpose_ros.core.models import load_bop_models
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache, is_crop_cache
-    kind = CropCache if is_crop_cache(args.cache) else TrainingCache
-    cache = kind(args.cache, args.max_shards)
+    extra = getattr(args, 'extra_cache', ())
+    if extra and not is_crop_cache(args.cache):
+        raise InputError(f'--extra-cache needs a crop cache as --cache; {args.cache} is not')
+    if is_crop_cache(args.cache):
+        cache = CropCache([args.cache, *extra], args.max_shards)
+    else:
+        cache = TrainingCache(args.cache, args.max_shards)
     models = load_bop_models(args.dataset, args.objects or cache.objects)
     return cache, models
 

@@ -89,6 +89,17 @@ def build_crop_cache(scenes, cache_dir, count, workers=2, progress=True,
                   partial(_write_shard, scenes.target_names), 'crop', workers, progress)
 
 
+def _read_meta(cache_dir):
+    meta_path = Path(cache_dir) / 'meta.json'
+    if not meta_path.is_file():
+        raise InputError(f'no crop cache in {cache_dir} (missing meta.json); build it with '
+                         '"bbpose train render-crops"')
+    meta = json.loads(meta_path.read_text())
+    if meta.get('kind') != 'qnet_crops':
+        raise InputError(f'{meta_path} is not a Q-Net crop cache (field "kind")')
+    return meta
+
+
 def is_crop_cache(cache_dir):
     """Tell whether ``cache_dir`` holds a crop cache (rather than a scene cache)."""
     meta_path = Path(cache_dir) / 'meta.json'
@@ -97,41 +108,56 @@ def is_crop_cache(cache_dir):
 
 class CropCache:
     """
-    All shards of a crop cache folder, loaded into memory and concatenated.
+    All shards of one or more crop cache folders, loaded into memory and concatenated.
+
+    Folders must agree on objects, camera, crop size and context (e.g. a procedural-background
+    cache and a photograph-background one). The last crops of each folder are its held-out
+    share (``held_out``).
 
     Attributes:
         objects: object names (index = ``object`` values).
         camera: CameraIntrinsics of the full frames the crops were cut from.
         crop_size: side of the stored crops; context: crop side / longest input-box side.
+        folder: (m,) index of the folder each crop comes from.
         Per-crop arrays as in the module docstring.
 
     """
 
-    def __init__(self, cache_dir, max_shards=None):
-        cache_dir = Path(cache_dir)
-        meta_path = cache_dir / 'meta.json'
-        if not meta_path.is_file():
-            raise InputError(f'no crop cache in {cache_dir} (missing meta.json); build it '
-                             'with "bbpose train render-crops"')
-        meta = json.loads(meta_path.read_text())
-        if meta.get('kind') != 'qnet_crops':
-            raise InputError(f'{meta_path} is not a Q-Net crop cache (field "kind")')
+    SHARED_META = ('objects', 'camera', 'crop_size', 'context')
+
+    def __init__(self, cache_dirs, max_shards=None):
+        dirs = [Path(cache_dirs)] if isinstance(cache_dirs, (str, Path)) else \
+            [Path(d) for d in cache_dirs]
+        metas = [_read_meta(d) for d in dirs]
+        for folder, meta in zip(dirs[1:], metas[1:]):
+            for key in self.SHARED_META:
+                if meta[key] != metas[0][key]:
+                    raise InputError(f'crop cache {folder}: "{key}" differs from {dirs[0]}')
+        meta = metas[0]
         self.objects = list(meta['objects'])
         self.camera = CameraIntrinsics(*meta['camera'][:4], *map(int, meta['camera'][4:]))
         self.crop_size = int(meta['crop_size'])
         self.context = float(meta['context'])
-        self.box_sigma = float(meta['box_sigma'])
-        paths = sorted(cache_dir.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
-        if not paths:
-            raise InputError(f'crop cache {cache_dir} has no shards yet')
-        parts = [dict(np.load(p)) for p in paths]
+        parts, folders = [], []
+        for k, folder in enumerate(dirs):
+            paths = sorted(folder.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
+            if not paths:
+                raise InputError(f'crop cache {folder} has no shards yet')
+            for path in paths:
+                parts.append(dict(np.load(path)))
+                folders.append(np.full(len(parts[-1]['visib']), k))
         for key in parts[0]:
             setattr(self, key, np.concatenate([p[key] for p in parts]))
-        self.shards = len(paths)
+        self.folder = np.concatenate(folders)
+        self.shards = len(parts)
 
     def held_out(self, fraction):
-        """(m,) bool: the last ``fraction`` of the crops (validation)."""
-        return np.arange(len(self.visib)) >= int(len(self.visib) * (1 - fraction))
+        """(m,) bool: the last ``fraction`` of each folder's crops (validation)."""
+        held = np.zeros(len(self.visib), dtype=bool)
+        for k in np.unique(self.folder):
+            ids = np.flatnonzero(self.folder == k)
+            held[ids[int(len(ids) * (1 - fraction)):]] = True
+        return held
 
     def input_crops(self, ids, rng, box_sigma, size, context):
         """
