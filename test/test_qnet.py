@@ -14,6 +14,7 @@
 
 """Q-Net: the q-normalization layer, the Dot Product Loss, symmetries and the hemisphere."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -118,3 +119,20 @@ def test_square_crop_keeps_aspect_and_context():
     crop = extract_crops(image, squares, 48)
     assert crop.shape == (1, 48, 48, 3)
     assert crop[0, 24, 0, 0] == 128 and crop[0, 24, 47, 0] == 0   # grey outside the image
+
+
+@pytest.mark.parametrize('side', [40.0, 97.0, 150.0, 333.0])
+def test_crop_shrinks_like_area_averaging_and_keeps_the_centre(side):
+    rows, cols = np.mgrid[0:480, 0:640]
+    image = np.repeat(((rows + 2 * cols) % 100).astype(np.uint8)[..., None], 3, axis=2)
+    centre = np.array([300.0, 200.0])
+    half = max(2, int(side / 16))    # a bright spot at the centre of the square
+    image[200 - half:200 + half, 300 - half:300 + half] = 255
+    squares = np.concatenate([centre - side / 2, centre + side / 2])[None]
+    crop = extract_crops(image, squares, 48)[0, ..., 0].astype(float)
+    rows_hit, cols_hit = np.nonzero(crop >= crop.max() - 1)
+    np.testing.assert_allclose([cols_hit.mean(), rows_hit.mean()], [23.5, 23.5], atol=1.0)
+    u0, v0 = (centre - side / 2).round().astype(int)
+    region = image[v0:v0 + int(side), u0:u0 + int(side), 0]
+    reference = cv2.resize(region, (48, 48), interpolation=cv2.INTER_AREA).astype(float)
+    assert np.median(np.abs(crop - reference)) < 8.0

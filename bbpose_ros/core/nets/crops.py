@@ -40,21 +40,28 @@ def extract_crops(image, squares, size):
     """
     Cut (N, 4) square regions out of an (H, W, 3) uint8 image, each resized to size x size.
 
-    The region's edges are rounded to whole pixels (<= 0.5 px); shrinking uses area averaging
-    (no aliasing), growing uses bilinear interpolation. Returns (N, size, size, 3) uint8.
+    The region's edges are rounded to whole pixels (<= 0.5 px). A region more than twice
+    ``size`` is first shrunk by area averaging with an integer factor (its side rounded to a
+    multiple of the factor, <= 1 % of the side, centre kept): OpenCV's fast path, 4-15x
+    cheaper than area averaging with a fractional factor. The remaining factor, below 2, is
+    bilinear. Returns (N, size, size, 3) uint8.
     """
     squares = np.asarray(squares, dtype=float).reshape(-1, 4)
     height, width = image.shape[:2]
     crops = np.empty((len(squares), size, size, 3), dtype=np.uint8)
     for k, (u0, v0, u1, _) in enumerate(squares):
-        side = max(1, int(round(u1 - u0)))
-        x0, y0 = int(np.floor(u0 + 0.5)), int(np.floor(v0 + 0.5))
+        factor = max(1, int((u1 - u0) // size))
+        side = max(1, int(round((u1 - u0) / factor))) * factor
+        x0 = int(np.floor((u0 + u1 - side) / 2.0 + 0.5))
+        y0 = int(np.floor(v0 + (u1 - u0 - side) / 2.0 + 0.5))
         x1, y1 = x0 + side, y0 + side
         region = image[max(y0, 0):min(y1, height), max(x0, 0):min(x1, width)]
         if region.shape[0] != side or region.shape[1] != side:
             region = _padded(region, side, max(0, -y0), max(0, -x0))
-        interpolation = cv2.INTER_AREA if side > size else cv2.INTER_LINEAR
-        crops[k] = cv2.resize(region, (size, size), interpolation=interpolation)
+        if factor > 1:
+            region = cv2.resize(region, (side // factor, side // factor),
+                                interpolation=cv2.INTER_AREA)
+        crops[k] = cv2.resize(region, (size, size), interpolation=cv2.INTER_LINEAR)
     return crops
 
 

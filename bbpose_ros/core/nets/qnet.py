@@ -144,7 +144,7 @@ class QNet(nn.Module):
 
     def forward(self, crops, object_index):
         """Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,)."""
-        x = (crops - _MEAN) / _STD
+        x = crops.sub(_MEAN).div_(_STD)
         if len(self.trunks) == 1:
             features = self.trunks[0](x)
         else:
