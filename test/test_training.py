@@ -15,6 +15,7 @@
 """Training: a tiny run lowers the loss, checkpoints resume, batches are consistent."""
 
 import numpy as np
+import pytest
 import torch
 
 from bbpose_ros.cli.main import main
@@ -117,6 +118,25 @@ def test_qnet_batches_are_on_the_hemisphere(lmo_models):
     assert images.shape == (8, 3, 48, 48) and candidates.shape[:2] == valid.shape
     assert torch.all(candidates[..., 0] >= 0)
     assert set(batches.val_ids) & set(batches.train_ids) == set()
+
+
+@pytest.mark.parametrize('sign_invariant', [False, True])
+def test_sign_invariant_loss_accepts_the_antipode(lmo_models, sign_invariant):
+    cache = _fake_cache(np.random.default_rng(5), scenes=4)
+    settings = QNetTrainSettings(batch=8, val_fraction=0.25, sign_invariant=sign_invariant)
+    batches = QNetBatches(cache, QNetConfig(OBJECTS), lmo_models, settings, 0)
+    _, _, candidates, valid = batches.train_batch()
+    truth = candidates[:, 0]
+    torch.testing.assert_close(symmetric_dot_product_loss(truth, candidates, valid),
+                               torch.zeros(8))
+    antipode_loss = symmetric_dot_product_loss(-truth, candidates, valid)
+    if sign_invariant:
+        torch.testing.assert_close(antipode_loss, torch.zeros(8), atol=1e-6, rtol=0)
+    else:    # the paper's loss: -q is the worst answer, but for a symmetric equivalent
+        assert torch.all(antipode_loss > 0.1)
+        plain = valid.sum(dim=1) == 1
+        assert plain.any()
+        torch.testing.assert_close(antipode_loss[plain], torch.ones(int(plain.sum())))
 
 
 def test_train_cli_without_a_cache_is_a_clear_error(tmp_path, lmo_root, capsys):
