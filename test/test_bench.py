@@ -51,7 +51,8 @@ def test_stage_bench_writes_every_key(lmo_root, tmp_path):
         assert set(summary['total']) == STATS and summary['fps'] > 0
     assert {'qnet', 'bbox_equation_per_object'} <= set(report['all_objects']['stages'])
     assert report['all_objects']['objects_per_frame'] >= 6        # LM-O: 6 to 8 per frame
-    assert report['torch_threads'] == 1 and report['frames'] == 2
+    assert report['inference_threads'] == 1 and report['frames'] == 2
+    assert report['inference_backend'] == 'onnxruntime'
     assert report['peak_rss_mb'] > 0
     assert all({'value', 'limit', 'met'} == set(b) for b in report['budgets'].values())
 

@@ -65,7 +65,7 @@ class _FixedNet(torch.nn.Module):
 def test_box_detector_maps_boxes_to_the_full_frame():
     heat, sides = _crafted([(0, 10, 20, 0.9, (16.0, 8.0, 24.0, 8.0)),
                             (1, 5, 5, 0.8, (4.0, 4.0, 4.0, 4.0))])
-    detector = BoxDetector(_FixedNet(heat, sides), ['ape', 'cat'], 0.3, 1)
+    detector = BoxDetector(_FixedNet(heat, sides), ['ape', 'cat'], 0.3, 1, backend='torch')
     detections = detector(np.zeros((480, 640, 3), dtype=np.uint8))
     assert [d.object_name for d in detections] == ['ape']      # 'can' is not wanted
     box_in = np.array([163.5 - 16, 83.5 - 8, 163.5 + 24, 83.5 + 8])

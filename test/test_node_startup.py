@@ -46,6 +46,8 @@ def start(params, *overrides):
     ({'objects': ['ape', 'teapot']}, (), 'unknown object name(s) teapot'),
     ({'qnet_weights': '/nonexistent/qnet.pt'}, (), 'qnet_weights: weights file not found'),
     ({'dataset_dir': '/nonexistent'}, (), 'dataset_dir: /nonexistent has no models/'),
+    ({'inference_backend': 'tensorrt'}, (), 'inference_backend: "tensorrt" is not one of'),
+    ({'device': 'cuda'}, (), 'onnxruntime runs on the CPU only'),
 ])
 def test_bad_configuration_is_refused_clearly(lmo_root, weights, tmp_path, values, overrides,
                                               expected):

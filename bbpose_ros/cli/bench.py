@@ -17,11 +17,12 @@
 
 Both modes take the node's parameters (``--params``, default config/bbpose.yaml, and
 ``--param``); ``--dataset``, ``--objects``, ``--threads`` and ``--score-threshold`` become
-overrides of ``dataset_dir``, ``objects``, ``torch_threads`` and ``score_threshold``, so the
-stage benchmark builds the very pipeline the node would, and ``--graph`` starts the node
+overrides of ``dataset_dir``, ``objects``, ``inference_threads`` and ``score_threshold``, so
+the stage benchmark builds the very pipeline the node would, and ``--graph`` starts the node
 with them.
 """
 
+import os
 from pathlib import Path
 
 from std_msgs.msg import Header
@@ -59,8 +60,8 @@ def add_parser(subparsers):
     parser.add_argument('--warmup', type=int, default=10,
                         help='untimed frames before timing (default %(default)s)')
     parser.add_argument('--threads', type=int, default=None,
-                        help='torch threads (node parameter torch_threads; 0: one per core; '
-                             'default: the parameters file)')
+                        help='inference threads (node parameter inference_threads; 0: one per '
+                             'core; default: the parameters file)')
     parser.add_argument('--score-threshold', type=float, default=None,
                         help='detector score threshold (default: the parameters file); 0 '
                              'makes the detector report every object')
@@ -84,7 +85,7 @@ def node_overrides(args):
     if args.objects:
         overrides.append(f'objects:=[{",".join(args.objects)}]')
     if args.threads is not None:
-        overrides.append(f'torch_threads:={args.threads}')
+        overrides.append(f'inference_threads:={args.threads}')
     if args.score_threshold is not None:
         overrides.append(f'score_threshold:={float(args.score_threshold)}')
     return overrides + list(args.param)
@@ -96,14 +97,17 @@ def bench_frames(frames, values, warmup):
     pipeline = load_pipeline(
         models, detector_weights=values['detector_weights'] or None,
         qnet_weights=values['qnet_weights'] or None, score_threshold=values['score_threshold'],
-        max_instances=values['max_instances'], device=values['device'],
-        threads=values['torch_threads'] or None)
+        max_instances=values['max_instances'], backend=values['inference_backend'],
+        device=values['device'], threads=values['inference_threads'] or None)
     header = Header(frame_id=topics.DEFAULT_FRAME_ID)
     markers = conversions.MarkerArrayBuilder(models)
-    return benchmark_frames(
+    report = benchmark_frames(
         frames, pipeline, lambda image: conversions.rgb_to_image(header, image),
         conversions.image_to_rgb,
         lambda poses: conversions.frame_messages(header, poses, markers), warmup=warmup)
+    report.update(inference_backend=values['inference_backend'],
+                  inference_threads=values['inference_threads'] or os.cpu_count())
+    return report
 
 
 def bench_graph(args, frames, values, overrides):
@@ -131,7 +135,8 @@ def format_frames(report):
     lines.append(f'fps {report["fps"]:.1f} (all objects {report["all_objects"]["fps"]:.1f}); '
                  f'objects per frame {report["objects_per_frame"]:.2f} (all objects '
                  f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '
-                 f'{report["peak_rss_mb"]:.0f} MB; torch threads {report["torch_threads"]}')
+                 f'{report["peak_rss_mb"]:.0f} MB; {report["inference_backend"]} with '
+                 f'{report["inference_threads"]} threads')
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 

@@ -38,7 +38,6 @@ import resource
 import time
 
 import numpy as np
-import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.evaluation import ground_truth_detections
@@ -122,7 +121,7 @@ def benchmark_frames(frames, pipeline, to_buffer, from_buffer, build_messages, w
 
     Returns:
         {'stages': {stage: latency_stats}, 'total', 'fps', 'objects_per_frame'} of the
-        detector mode, its 'all_objects' counterpart, 'peak_rss_mb', 'torch_threads',
+        detector mode, its 'all_objects' counterpart, 'peak_rss_mb',
         'frames' and 'budgets' ({name: {'value', 'limit', 'met'}}).
 
     """
@@ -141,8 +140,7 @@ def benchmark_frames(frames, pipeline, to_buffer, from_buffer, build_messages, w
                 timings[mode].append(times)
     report = _summary(timings['detector'])
     report['all_objects'] = _summary(timings['all_objects'])
-    report.update(peak_rss_mb=peak_rss_mb(), torch_threads=torch.get_num_threads(),
-                  frames=len(frames))
+    report.update(peak_rss_mb=peak_rss_mb(), frames=len(frames))
     report['budgets'] = {name: budget(_frame_statistic(report, *where[:3]), where[3])
                          for name, where in FRAME_BUDGETS.items()}
     return report

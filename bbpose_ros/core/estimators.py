@@ -22,15 +22,12 @@ The learned stages as pipeline callables, and ``load_pipeline`` that wires them 
   with the ray through each box centre.
 """
 
-import copy
-
 import cv2
 import numpy as np
 import torch
-from torch import nn
-from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference import make_runner
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALUE
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.detector import decode
@@ -43,29 +40,10 @@ from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIG
 MAX_WARM_UP_BATCH = 16
 
 
-def image_tensor(images_nhwc, device='cpu'):
-    """(N, H, W, 3) uint8 -> (N, 3, H, W) float 0..1 tensor in channels_last memory layout."""
-    tensor = torch.from_numpy(np.ascontiguousarray(images_nhwc)).to(device)
+def image_tensor(images_nhwc):
+    """(N, H, W, 3) uint8 -> (N, 3, H, W) float 0..1 CPU tensor in channels_last layout."""
+    tensor = torch.from_numpy(np.ascontiguousarray(images_nhwc))
     return tensor.permute(0, 3, 1, 2).float().div_(255.0)
-
-
-def inference_network(network, device='cpu'):
-    """
-    Return a copy of an eval-mode network prepared for fast inference on ``device``.
-
-    Each Conv2d directly followed by a BatchNorm2d inside an nn.Sequential is folded into one
-    Conv2d (the BatchNorm becomes an Identity): the same function up to float rounding
-    (~1e-7), without the separate normalisation pass that took a fifth of Q-Net's time on
-    the CPU. The copy uses the channels_last memory layout, which oneDNN convolutions run
-    faster on. The architecture and the weights given are left untouched.
-    """
-    network = copy.deepcopy(network).eval()
-    for sequence in [m for m in network.modules() if isinstance(m, nn.Sequential)]:
-        for k in range(len(sequence) - 1):
-            conv, norm = sequence[k], sequence[k + 1]
-            if isinstance(conv, nn.Conv2d) and isinstance(norm, nn.BatchNorm2d):
-                sequence[k], sequence[k + 1] = fuse_conv_bn_eval(conv, norm), nn.Identity()
-    return network.to(device).to(memory_format=torch.channels_last)
 
 
 class BoxDetector:
@@ -73,31 +51,33 @@ class BoxDetector:
     Detector callable: ``detect(image_rgb (H, W, 3) uint8) -> list[Detection]``.
 
     Args:
-        network: a CenterBoxNet in eval mode (a copy is prepared by ``inference_network``).
+        network: a CenterBoxNet (a copy is prepared for inference by ``make_runner``).
         names: object names to report (a subset of the network's classes).
         score_threshold: lowest peak probability reported.
         max_instances: most detections per object name.
-        device: torch device of ``network``.
+        backend, device, threads: see ``inference.make_runner``.
 
     """
 
-    def __init__(self, network, names, score_threshold=0.3, max_instances=1, device='cpu'):
-        self.network = inference_network(network, device)
+    def __init__(self, network, names, score_threshold=0.3, max_instances=1,
+                 backend='onnxruntime', device='cpu', threads=None):
         self.config = network.config
+        in_w, in_h = self.config.input_size
+        self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
+        self.network = make_runner(network, (image_tensor(self.blank),), backend, device,
+                                   threads)
         self.wanted = np.array([name in set(names) for name in self.config.objects])
         self.score_threshold = score_threshold
         self.max_instances = max_instances
-        self.device = device
 
     def __call__(self, image_rgb):
         """Detect the wanted objects; highest score first."""
         height, width = image_rgb.shape[:2]
         in_w, in_h = self.config.input_size
         small = cv2.resize(image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
-        with torch.inference_mode():
-            heat, box = self.network(image_tensor(small[None], self.device))
-            classes, scores, boxes = decode(heat[0].cpu(), box[0].cpu(), self.config.stride,
-                                            self.score_threshold, self.max_instances)
+        heat, box = self.network(image_tensor(small[None]))
+        classes, scores, boxes = decode(heat[0].cpu(), box[0].cpu(), self.config.stride,
+                                        self.score_threshold, self.max_instances)
         scale = np.array([width / in_w, height / in_h] * 2)
         boxes = (boxes.numpy().astype(float) + 0.5) * scale - 0.5
         return [Detection(self.config.objects[c], float(s), b)
@@ -106,9 +86,7 @@ class BoxDetector:
 
     def warm_up(self):
         """Run the network once on a blank input (see QNetRotationEstimator.warm_up)."""
-        in_w, in_h = self.config.input_size
-        with torch.inference_mode():
-            self.network(image_tensor(np.zeros((1, in_h, in_w, 3), np.uint8), self.device))
+        self.network(image_tensor(self.blank))
 
 
 class QNetRotationEstimator:
@@ -117,13 +95,22 @@ class QNetRotationEstimator:
 
     All crops of a frame go through Q-Net in one batch. Output rotations are egocentric
     (model-to-camera, x_cam = R x_model + t) whatever the network's target.
+
+    Args:
+        network: a QNet (a copy is prepared for inference by ``make_runner``); a per_object
+            one (its forward branches on the object indices) needs the torch backend.
+        backend, device, threads: see ``inference.make_runner``.
+
     """
 
-    def __init__(self, network, device='cpu'):
-        self.network = inference_network(network, device)
+    def __init__(self, network, backend='onnxruntime', device='cpu', threads=None):
         self.config = network.config
+        if self.config.sharing == 'per_object' and backend != 'torch':
+            raise InputError(f'a per_object Q-Net runs only on the torch backend, not on '
+                             f'{backend}')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
-        self.device = device
+        self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
+                                   dynamic_batch=True)
 
     def __call__(self, image_rgb, camera, detections):
         """Egocentric rotations (N, 3, 3), one per detection."""
@@ -133,12 +120,16 @@ class QNetRotationEstimator:
         crops = extract_crops(image_rgb, square_boxes(boxes, self.config.context),
                               self.config.crop_size)
         index = torch.tensor([self.index[d.object_name] for d in detections])
-        with torch.inference_mode():
-            q_wxyz = self.network(image_tensor(crops, self.device), index.to(self.device))
+        q_wxyz = self.network(image_tensor(crops), index)
         rotations = quat_wxyz_to_matrix(q_wxyz.cpu().numpy().astype(float))
         if self.config.rotation_target == 'allocentric':
             rotations = allocentric_to_egocentric(rotations, box_centre_rays(boxes, camera))
         return rotations
+
+    def _blank_batch(self, count):
+        size = self.config.crop_size
+        crops = np.full((count, size, size, 3), FILL_VALUE, dtype=np.uint8)
+        return image_tensor(crops), torch.zeros(count, dtype=torch.long)
 
     def warm_up(self, max_batch):
         """
@@ -147,16 +138,12 @@ class QNetRotationEstimator:
         oneDNN prepares its kernels on the first call with each input shape: 1-6 ms extra
         per new batch size on 2 CPU cores. Done here, that stays out of the first frames.
         """
-        size = self.config.crop_size
-        with torch.inference_mode():
-            for count in range(1, max_batch + 1):
-                crops = np.full((count, size, size, 3), FILL_VALUE, dtype=np.uint8)
-                self.network(image_tensor(crops, self.device),
-                             torch.zeros(count, dtype=torch.long, device=self.device))
+        for count in range(1, max_batch + 1):
+            self.network(*self._blank_batch(count))
 
 
 def load_pipeline(models, detector_weights=None, qnet_weights=None, score_threshold=0.3,
-                  max_instances=1, device='cpu', threads=None):
+                  max_instances=1, backend='onnxruntime', device='cpu', threads=None):
     """
     Build a PosePipeline with the learned detector and Q-Net.
 
@@ -166,8 +153,9 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
         qnet_weights: Q-Net file (default: the shipped ``weights/qnet.pt``).
         score_threshold: lowest detector score reported (0..1).
         max_instances: most detections per object and frame.
-        device: torch device, e.g. 'cpu'.
-        threads: torch intra-op threads (None: leave torch's setting).
+        backend: inference backend, 'onnxruntime' or 'torch' (see ``inference``).
+        device: torch device, e.g. 'cpu' ('onnxruntime' runs on the CPU only).
+        threads: intra-op threads of torch and ONNX Runtime (None: their defaults).
 
     Returns:
         PosePipeline(models, detector, rotation_estimator).
@@ -187,9 +175,10 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
     names = list(models)
     detector = BoxDetector(
         load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
-        score_threshold, max_instances, device)
+        score_threshold, max_instances, backend, device, threads)
     rotation = QNetRotationEstimator(
-        load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names), device)
+        load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names), backend, device,
+        threads)
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
     return PosePipeline(models, detector, rotation)

@@ -78,8 +78,9 @@ def build_pipeline(config):
         return load_pipeline(models, detector_weights=config.detector_weights,
                              qnet_weights=config.qnet_weights,
                              score_threshold=config.score_threshold,
-                             max_instances=config.max_instances, device=config.device,
-                             threads=config.torch_threads or None)
+                             max_instances=config.max_instances,
+                             backend=config.inference_backend, device=config.device,
+                             threads=config.inference_threads or None)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
                          f'files): {err}') from err

@@ -31,6 +31,7 @@ import yaml
 
 from bbpose_ros.cli.common import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference import BACKENDS
 
 NODE_NAME = 'bbpose_node'
 LMO_OBJECTS = ['ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher']
@@ -65,10 +66,13 @@ PARAMETERS = {
         'Detections scoring below this (0..1) are ignored.', float_range=(0.0, 1.0))),
     'max_instances': (1, _descriptor(
         'Most instances reported per object and frame.', int_range=(1, 100))),
-    'device': ('cpu', _descriptor('Torch device of the networks: cpu, cuda or cuda:N.')),
-    'torch_threads': (0, _descriptor(
-        'Torch CPU (intra-op) threads; 0: torch default (one per core); 1: a single thread, '
-        'leaving the other cores to DDS and the executor (best on 2 cores).',
+    'inference_backend': ('onnxruntime', _descriptor(
+        'What runs the networks: onnxruntime (CPU only, the fastest there) or torch.')),
+    'device': ('cpu', _descriptor(
+        'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch backend).')),
+    'inference_threads': (0, _descriptor(
+        'CPU (intra-op) threads of the inference backend; 0: its default (one per core); '
+        '1: a single thread, leaving the other cores to DDS and the executor.',
         int_range=(0, 256))),
     'qos_reliability': ('reliable', _descriptor(
         'Reliability of the image and camera_info subscriptions: reliable or best_effort.')),
@@ -97,8 +101,9 @@ class NodeConfig:
     qnet_weights: Path
     score_threshold: float
     max_instances: int
+    inference_backend: str
     device: str
-    torch_threads: int
+    inference_threads: int
     qos: QoSProfile
 
 
@@ -119,13 +124,21 @@ def declare_parameters(node):
                          f'of {", ".join(RELIABILITY)}')
     if value['device'] != 'cpu' and not value['device'].startswith('cuda'):
         raise InputError(f'parameter device: "{value["device"]}" is not cpu, cuda or cuda:N')
+    if value['inference_backend'] not in BACKENDS:
+        raise InputError(f'parameter inference_backend: "{value["inference_backend"]}" is not '
+                         f'one of {", ".join(BACKENDS)}')
+    if value['inference_backend'] != 'torch' and value['device'] != 'cpu':
+        raise InputError(f'parameters inference_backend / device: {value["inference_backend"]} '
+                         f'runs on the CPU only; use inference_backend torch for device '
+                         f'{value["device"]}')
     return NodeConfig(
         objects=tuple(value['objects']),
         dataset_dir=resolve_dataset_dir(value['dataset_dir']),
         detector_weights=_weights_file('detector_weights', value['detector_weights']),
         qnet_weights=_weights_file('qnet_weights', value['qnet_weights']),
         score_threshold=value['score_threshold'], max_instances=value['max_instances'],
-        device=value['device'], torch_threads=value['torch_threads'],
+        inference_backend=value['inference_backend'], device=value['device'],
+        inference_threads=value['inference_threads'],
         qos=QoSProfile(depth=value['qos_depth'],
                        reliability=RELIABILITY[value['qos_reliability']]))
 

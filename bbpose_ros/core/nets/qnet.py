@@ -152,6 +152,7 @@ class QNet(nn.Module):
             for k in torch.unique(object_index).tolist():
                 chosen = object_index == k
                 features[chosen] = self.trunks[k](x[chosen])
-        raw = self.head(features).view(len(x), -1, 4)
-        raw = raw[torch.arange(len(x), device=x.device), object_index]
+        # Each crop's own head (written without len(x), so that a trace keeps the batch free).
+        raw = self.head(features).unflatten(1, (-1, 4))
+        raw = raw.gather(1, object_index.view(-1, 1, 1).expand(-1, 1, 4)).squeeze(1)
         return self.normalize(raw)

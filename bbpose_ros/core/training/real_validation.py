@@ -54,7 +54,7 @@ class RealCrops:
 
     def rotation_errors(self, network):
         """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
-        estimate = QNetRotationEstimator(network)
+        estimate = QNetRotationEstimator(network, backend='torch')
         errors = []
         with torch.inference_mode():
             for frame, image, instances in self.items:

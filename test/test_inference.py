@@ -1,0 +1,85 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Inference backends: folded networks and ONNX Runtime compute what the trained net does."""
+
+import pytest
+import torch
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.inference import inference_network, make_runner
+from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+
+OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+
+
+def _trained_looking(network):
+    """Give every BatchNorm non-trivial statistics, so that folding them is tested."""
+    torch.manual_seed(3)
+    for norm in [m for m in network.modules() if isinstance(m, torch.nn.BatchNorm2d)]:
+        norm.running_mean.uniform_(-0.5, 0.5)
+        norm.running_var.uniform_(0.5, 2.0)
+        norm.weight.data.uniform_(0.5, 1.5)
+        norm.bias.data.uniform_(-0.2, 0.2)
+    return network.eval()
+
+
+def test_folded_copy_computes_the_same_function():
+    net = _trained_looking(QNet(QNetConfig(OBJECTS)))
+    folded = inference_network(net)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in net.modules())   # untouched
+    crops, index = torch.rand(6, 3, 48, 48), torch.tensor([0, 1, 5, 6, 7, 0])
+    with torch.inference_mode():
+        torch.testing.assert_close(folded(crops, index), net(crops, index), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize('batch', [1, 3, 8])
+def test_onnxruntime_qnet_matches_torch_for_any_batch(batch):
+    net = _trained_looking(QNet(QNetConfig(OBJECTS)))
+    example = (torch.rand(2, 3, 48, 48), torch.tensor([0, 1]))     # traced with batch 2
+    onnx = make_runner(net, example, 'onnxruntime', threads=1, dynamic_batch=True)
+    crops, index = torch.rand(batch, 3, 48, 48), torch.randint(0, len(OBJECTS), (batch,))
+    with torch.inference_mode():
+        expected = net(crops, index)
+    torch.testing.assert_close(onnx(crops, index), expected, atol=1e-5, rtol=0)
+    torch.testing.assert_close(make_runner(net, example, 'torch')(crops, index), expected,
+                               atol=1e-5, rtol=0)
+
+
+def test_onnxruntime_detector_matches_torch():
+    net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS)))
+    width, height = net.config.input_size
+    image = torch.rand(1, 3, height, width)
+    with torch.inference_mode():
+        expected = net(image)
+    outputs = make_runner(net, (image,), 'onnxruntime', threads=1)(image)
+    assert len(outputs) == len(expected) == 2
+    for got, want in zip(outputs, expected):
+        torch.testing.assert_close(got, want, atol=1e-4, rtol=1e-4)
+
+
+def test_backend_choice_is_checked():
+    net = QNet(QNetConfig(OBJECTS)).eval()
+    example = (torch.rand(1, 3, 48, 48), torch.tensor([0]))
+    with pytest.raises(InputError, match='"tensorrt" is not one of onnxruntime, torch'):
+        make_runner(net, example, 'tensorrt')
+    with pytest.raises(InputError, match='CPU only, not on device "cuda"'):
+        make_runner(net, example, 'onnxruntime', device='cuda')
+    per_object = QNet(QNetConfig(OBJECTS, sharing='per_object')).eval()
+    with pytest.raises(InputError, match='per_object Q-Net runs only on the torch backend'):
+        QNetRotationEstimator(per_object, backend='onnxruntime')
+    QNetRotationEstimator(per_object, backend='torch')
