@@ -21,7 +21,7 @@ import sys
 
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files
 
-from bbpose_ros.core.benchmark import STAGES
+from bbpose_ros.core.benchmark import ProcessSample, STAGES, summarize_graph
 
 STATS = {'median_ms', 'p95_ms', 'max_ms'}
 
@@ -70,4 +70,18 @@ def test_graph_bench_answers_and_writes_every_key(lmo_root, tmp_path):
     assert report['answer_latency']['median_ms'] > 0
     node = report['node']
     assert node['rss_start_mb'] > 0 and node['rss_end_mb'] > 0 and node['cpu_percent'] >= 0
+    assert len(node['rss_trace_mb']) == 2                 # frames 0 and 4 of 8 at 4 Hz
+    assert node['rss_settled_mb'] is None                # a 2 s run never settles
     assert isinstance(node['counts'], dict)
+
+
+def test_rss_after_settling_tells_a_step_from_a_climb():
+    latencies = [{'end_to_end': 10.0, 'answer': 11.0}] * 30
+    start, end = ProcessSample(0.0, 0.0, 400.0), ProcessSample(30.0, 15.0, 442.0)
+    step = [(0.0, 400.0), (5.0, 440.0), (10.5, 441.0), (20.0, 441.5)]
+    climb = [(0.0, 400.0), (5.0, 407.0), (10.5, 414.0), (20.0, 428.0)]
+    for trace, after in ((step, 100 * 1 / 441), (climb, 100 * 28 / 414)):
+        node = summarize_graph(latencies, 30, start, end, {}, trace)['node']
+        assert abs(node['rss_growth_percent'] - 10.5) < 1e-9
+        assert abs(node['rss_growth_after_settle_percent'] - after) < 1e-9
+        assert node['cpu_percent'] == 50.0

@@ -31,7 +31,8 @@ from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.common import write_json_atomic
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
-from bbpose_ros.core.benchmark import benchmark_frames, STAGES, summarize_graph
+from bbpose_ros.core.benchmark import benchmark_frames, RSS_SETTLE_S, STAGES
+from bbpose_ros.core.benchmark import summarize_graph
 from bbpose_ros.core.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.estimators import load_pipeline
@@ -117,7 +118,8 @@ def bench_graph(args, frames, values, overrides):
     graph = run_graph(camera_messages(frames), list(values['objects']), args.params, overrides,
                       args.rate, args.duration)
     report = summarize_graph(latencies_ms(graph.recording), len(graph.recording.published_s),
-                             graph.node_start, graph.node_end, graph.node_counts)
+                             graph.node_start, graph.node_end, graph.node_counts,
+                             graph.node_rss_trace)
     report.update(rate_hz=args.rate, duration_s=args.duration,
                   node_timings_ms=graph.recording.timings_ms)
     return report
@@ -150,7 +152,10 @@ def format_graph(report):
              f'{frames["dropped"]} dropped, {frames["with_poses"]} with poses; node counted '
              f'{node["counts"]}',
              f'node: CPU {node["cpu_percent"]:.0f} %, RSS {node["rss_start_mb"]:.0f} -> '
-             f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_percent"]:+.1f} %)']
+             f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_percent"]:+.1f} %)'
+             + ('' if node['rss_settled_mb'] is None else
+                f'; from {RSS_SETTLE_S:.0f} s on {node["rss_settled_mb"]:.0f} -> '
+                f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_after_settle_percent"]:+.1f} %)')]
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 

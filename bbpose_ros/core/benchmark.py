@@ -55,6 +55,8 @@ FRAME_BUDGETS = {
 }
 GRAPH_LATENCY_P95_MS = 40.0
 GRAPH_RSS_GROWTH_PERCENT = 5.0
+# Seconds into a graph run after which the node's RSS counts as settled (see summarize_graph).
+RSS_SETTLE_S = 10.0
 _CLOCK_TICKS_PER_S = os.sysconf('SC_CLK_TCK')     # unit of /proc/<pid>/stat CPU times
 
 
@@ -146,7 +148,7 @@ def benchmark_frames(frames, pipeline, to_buffer, from_buffer, build_messages, w
     return report
 
 
-def summarize_graph(latencies, published, node_start, node_end, node_counts):
+def summarize_graph(latencies, published, node_start, node_end, node_counts, rss_trace=()):
     """
     Make the report of a fixed-rate run through the ROS graph.
 
@@ -157,17 +159,23 @@ def summarize_graph(latencies, published, node_start, node_end, node_counts):
         published: number of frames published.
         node_start, node_end: ProcessSamples of the node at the first and last publication.
         node_counts: {counter: frames} the node counted during the run.
+        rss_trace: [(seconds since the first publication, node RSS in MB)].
 
     Returns:
         {'latency', 'answer_latency': latency_stats, 'latency_drift_ms' (median answer
         latency of the last third of the frames minus the first third's), 'frames':
         {'published', 'answered', 'dropped', 'with_poses'}, 'node': {'cpu_percent',
-        'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'counts'}, 'budgets'}.
+        'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'rss_settled_mb' (the first
+        sample RSS_SETTLE_S into the run; None in a shorter run),
+        'rss_growth_after_settle_percent', 'rss_trace_mb', 'counts'}, 'budgets'}. The budget
+        is on 'rss_growth_percent'; the settled figures tell a one-off step while the
+        transport's buffers fill from a steady climb.
 
     """
     answers = [frame['answer'] for frame in latencies if 'answer' in frame]
     third = len(answers) // 3
     growth = 100.0 * (node_end.rss_mb - node_start.rss_mb) / node_start.rss_mb
+    settled = next((mb for seconds, mb in rss_trace if seconds >= RSS_SETTLE_S), None)
     report = {
         'latency': latency_stats([f['end_to_end'] for f in latencies if 'end_to_end' in f]),
         'answer_latency': latency_stats(answers),
@@ -178,7 +186,11 @@ def summarize_graph(latencies, published, node_start, node_end, node_counts):
                    'with_poses': sum('end_to_end' in f for f in latencies)},
         'node': {'cpu_percent': cpu_percent(node_start, node_end),
                  'rss_start_mb': node_start.rss_mb, 'rss_end_mb': node_end.rss_mb,
-                 'rss_growth_percent': growth, 'counts': dict(node_counts)}}
+                 'rss_growth_percent': growth, 'rss_settled_mb': settled,
+                 'rss_growth_after_settle_percent':
+                     None if settled is None else 100.0 * (node_end.rss_mb - settled) / settled,
+                 'rss_trace_mb': [[round(s, 2), round(mb, 1)] for s, mb in rss_trace],
+                 'counts': dict(node_counts)}}
     report['budgets'] = {
         'answer_latency_p95': budget(report['answer_latency']['p95_ms'],
                                      GRAPH_LATENCY_P95_MS),

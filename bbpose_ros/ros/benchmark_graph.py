@@ -141,6 +141,8 @@ class GraphRun:
         node_start, node_end: ProcessSamples of the node when the first and the last frame
             were published.
         node_counts: {counter: frames} the node counted during the run (see diagnostics).
+        node_rss_trace: [(seconds since the first publication, node RSS in MB)], about one
+            a second.
 
     """
 
@@ -148,6 +150,7 @@ class GraphRun:
     node_start: object
     node_end: object
     node_counts: dict
+    node_rss_trace: list
 
 
 def run_graph(pairs, objects, params_file, overrides, rate_hz, duration_s):
@@ -205,7 +208,11 @@ def _timed_run(camera, recorder, clock, process, baseline, rate_hz, duration_s):
     period_s = 1.0 / rate_hz
     start = sample_process(process.process.pid)
     begin_s = time.perf_counter()
+    rss_trace = []
     for index in range(max(1, round(duration_s * rate_hz))):
+        if index % max(1, round(rate_hz)) == 0:
+            rss_trace.append((time.perf_counter() - begin_s,
+                              sample_process(process.process.pid).rss_mb))
         due_s = begin_s + index * period_s
         while (left_s := due_s - time.perf_counter()) > 0:
             recorder.executor.spin_once(timeout_sec=left_s)
@@ -220,4 +227,4 @@ def _timed_run(camera, recorder, clock, process, baseline, rate_hz, duration_s):
                         DIAGNOSTICS_TIMEOUT_S, process)
     recording.timings_ms = diagnostics.timings_ms
     counts = {key: value - baseline.get(key, 0) for key, value in diagnostics.counts.items()}
-    return GraphRun(recording, start, end, counts)
+    return GraphRun(recording, start, end, counts, rss_trace)
