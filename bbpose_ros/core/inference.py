@@ -17,9 +17,9 @@ Trained networks prepared for inference, run by one of two backends.
 
 * 'onnxruntime' (the default): the prepared network is exported to ONNX in memory (nothing
   is written; ~0.3 s at load) and run by ONNX Runtime's CPU kernels. On 2 CPU cores without
-  AVX-512 it ran Q-Net on 8 crops in 1.5 ms instead of 2.6 ms and the detector in 5.0 ms
-  instead of 9.5 ms (one thread; README "Performance"): eager PyTorch spends much of such
-  small convolutions in per-operator overhead.
+  AVX-512, one thread, in a tight loop it ran Q-Net on 8 crops in 1.5 ms instead of 2.6 ms
+  and the detector in 5.0 ms instead of 9.5 ms; in the pipeline, where other work evicts
+  the weights from cache between calls, 1.4x and 1.2x faster (README "Performance").
 * 'torch': eager PyTorch under ``inference_mode``; the one for a CUDA device.
 
 Both take and return torch tensors, so that the estimators do not depend on the backend.
