@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.bbox_equation import pad_point_sets, solve_translations
+from bbpose_ros.core.bbox_equation import pad_point_sets, SELECTIONS, solve_translations
 from bbpose_ros.core.camera import CameraIntrinsics
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
@@ -42,14 +42,15 @@ def random_poses(seed, count):
     return rotations, np.column_stack([xy, z])
 
 
+@pytest.mark.parametrize('selection', SELECTIONS)
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_recovers_translation_exactly(lmo_models, seed):
+def test_recovers_translation_exactly(lmo_models, selection, seed):
     rotations, translations = random_poses(seed, len(OBJECTS))
     points = pad_point_sets([lmo_models[name].hull_points for name in OBJECTS])
     boxes = exact_boxes(rotations, translations, points)
     solution = solve_translations(rotations, boxes, points, CAMERA.fx, CAMERA.fy, CAMERA.cx,
-                                  CAMERA.cy)
+                                  CAMERA.cy, selection=selection)
     np.testing.assert_allclose(solution.translations, translations, atol=1e-6)
     assert solution.converged.all()
     assert (solution.iterations <= 10).all()
@@ -67,14 +68,15 @@ def test_hull_points_give_the_same_translation_as_all_vertices(lmo_models):
                                atol=1e-9)
 
 
-def test_one_dropped_side_still_determines_translation(lmo_models):
+@pytest.mark.parametrize('selection', SELECTIONS)
+def test_one_dropped_side_still_determines_translation(lmo_models, selection):
     rotations, translations = random_poses(3, len(OBJECTS))
     points = pad_point_sets([lmo_models[name].hull_points for name in OBJECTS])
     boxes = exact_boxes(rotations, translations, points)
     boxes[:, 2] += 40.0                       # the right side is wrong (e.g. cut) ...
     weights = np.array([[1.0, 1.0, 0.0, 1.0]] * len(OBJECTS))   # ... and ignored
     solution = solve_translations(rotations, boxes, points, CAMERA.fx, CAMERA.fy, CAMERA.cx,
-                                  CAMERA.cy, side_weights=weights)
+                                  CAMERA.cy, side_weights=weights, selection=selection)
     np.testing.assert_allclose(solution.translations, translations, atol=1e-6)
 
 
@@ -83,13 +85,14 @@ def test_iterations_are_bounded(lmo_models):
     points = np.repeat(lmo_models['driller'].hull_points[None], 50, axis=0)
     boxes = exact_boxes(rotations, translations, points)
     solution = solve_translations(rotations, boxes, points, CAMERA.fx, CAMERA.fy, CAMERA.cx,
-                                  CAMERA.cy, max_iterations=1)
+                                  CAMERA.cy, selection='direct_then_perspective',
+                                  max_iterations=1)
     assert (solution.iterations <= 1).all()
 
 
-def real_instance_errors(frames, models, max_iterations):
-    """Measure errors (m) on LM-O with true rotation and bbox_obj; flag boxes cut by borders."""
-    errors, cut = [], []
+def real_instance_solutions(frames, models, **options):
+    """Solve every LM-O instance with true rotation and bbox_obj; (translations, truth, cut)."""
+    found, truths, cut = [], [], []
     for frame in frames:
         instances = [i for i in frame.instances if i.visib_fract >= 0.1]
         rotations = np.stack([i.rotation for i in instances])
@@ -97,26 +100,48 @@ def real_instance_errors(frames, models, max_iterations):
         points = pad_point_sets([models[i.object_name].hull_points for i in instances])
         camera = frame.camera
         solution = solve_translations(rotations, boxes, points, camera.fx, camera.fy,
-                                      camera.cx, camera.cy, max_iterations=max_iterations)
-        truth = np.stack([i.translation for i in instances])
-        errors.extend(np.linalg.norm(solution.translations - truth, axis=1))
+                                      camera.cx, camera.cy, **options)
+        found.append(solution.translations)
+        truths.append(np.stack([i.translation for i in instances]))
         cut.extend((b[0] < -0.5) | (b[1] < -0.5) | (b[2] > camera.width - 0.5)
                    | (b[3] > camera.height - 0.5) for b in boxes)
-    return np.array(errors), np.array(cut)
+    return np.concatenate(found), np.concatenate(truths), np.array(cut)
 
 
-def test_real_lmo_frames_with_ground_truth_rotation(lmo_frames, lmo_models):
-    errors, cut = real_instance_errors(lmo_frames, lmo_models, max_iterations=10)
+def real_instance_errors(frames, models, **options):
+    """Errors (m) on LM-O with true rotation and bbox_obj, and which boxes the border cut."""
+    found, truth, cut = real_instance_solutions(frames, models, **options)
+    return np.linalg.norm(found - truth, axis=1), cut
+
+
+@pytest.mark.parametrize('selection', SELECTIONS)
+def test_real_lmo_frames_with_ground_truth_rotation(lmo_frames, lmo_models, selection):
+    errors, cut = real_instance_errors(lmo_frames, lmo_models, selection=selection)
     assert len(errors) > 700
     assert np.median(errors) <= 0.010
     assert errors[~cut].max() < 0.050
 
 
 def test_perspective_reselection_beats_direct_conversion_alone(lmo_frames, lmo_models):
-    iterated, _ = real_instance_errors(lmo_frames, lmo_models, max_iterations=10)
-    direct, _ = real_instance_errors(lmo_frames, lmo_models, max_iterations=0)
+    iterated, _ = real_instance_errors(lmo_frames, lmo_models,
+                                       selection='direct_then_perspective', max_iterations=10)
+    direct, _ = real_instance_errors(lmo_frames, lmo_models,
+                                     selection='direct_then_perspective', max_iterations=0)
     assert iterated.max() < direct.max()
     assert np.median(iterated) <= np.median(direct) + 1e-9
+
+
+def test_tangent_planes_reach_the_iterations_fixed_point(lmo_frames, lmo_models):
+    tangent, _, _ = real_instance_solutions(lmo_frames, lmo_models, selection='tangent_planes')
+    iterated, _, _ = real_instance_solutions(lmo_frames, lmo_models,
+                                             selection='direct_then_perspective')
+    assert np.linalg.norm(tangent - iterated, axis=1).max() < 1e-4      # 0.1 mm
+
+
+def test_unknown_selection_is_refused():
+    with pytest.raises(ValueError, match='selection must be one of'):
+        solve_translations(np.eye(3)[None], np.array([[0.0, 0.0, 10.0, 10.0]]),
+                           np.zeros((1, 2, 3)), 500.0, 500.0, 320.0, 240.0, selection='guess')
 
 
 @pytest.mark.parametrize('size', [(640, 480), (320, 240)])

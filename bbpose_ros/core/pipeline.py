@@ -89,16 +89,20 @@ class PosePipeline:
         detector: callable image -> detections, or None when detections are always given.
         rotation_estimator: callable (image, camera, detections) -> (N, 3, 3), or None when
             rotations are always given.
-        max_iterations: bound on the Bounding Box Equation's touching-point re-selections.
+        selection: how the Bounding Box Equation chooses its touching points
+            (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
+        max_iterations: bound on the re-selections of 'direct_then_perspective'.
 
     """
 
-    def __init__(self, models, detector=None, rotation_estimator=None, max_iterations=10):
+    def __init__(self, models, detector=None, rotation_estimator=None,
+                 selection='tangent_planes', max_iterations=10):
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
         self.detector = detector
         self.rotation_estimator = rotation_estimator
+        self.selection = selection
         self.max_iterations = max_iterations
 
     def estimate(self, image_rgb, camera, detections=None, rotations=None):
@@ -147,6 +151,7 @@ class PosePipeline:
         boxes = np.stack([d.box_uv for d in detections])
         solution = solve_translations(rotations, boxes, points, camera.fx, camera.fy,
                                       camera.cx, camera.cy,
+                                      selection=self.selection,
                                       max_iterations=self.max_iterations)
         return [PoseEstimate(d, r, t)
                 for d, r, t in zip(detections, rotations, solution.translations)]
