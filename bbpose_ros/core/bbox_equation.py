@@ -90,13 +90,21 @@ def _extreme_indices(u, v):
                     axis=1)
 
 
-def _tangent_indices(rotated, boxes_norm):
-    """(N, 4) indices of the points touching the planes through the camera and each side."""
-    x, y, z = rotated[:, 0], rotated[:, 1], rotated[:, 2]
-    return np.stack([(x - boxes_norm[:, 0:1] * z).argmin(axis=1),
-                     (y - boxes_norm[:, 1:2] * z).argmin(axis=1),
-                     (x - boxes_norm[:, 2:3] * z).argmax(axis=1),
-                     (y - boxes_norm[:, 3:4] * z).argmax(axis=1)], axis=1)
+def _tangent_indices(rotations, points, boxes_norm):
+    """
+    (N, 4) indices of the model points touching the planes through the camera and each side.
+
+    Side k's plane has the camera-frame normal n_k = (1, 0, -a) for a left or right side at
+    a = (u - cx) / fx, (0, 1, -b) for a top or bottom one; the object touches it where
+    n_k . R X is least (left, top) or largest (right, bottom). The normals of the left and
+    top sides are flipped so that every side takes a largest value, and they are turned into
+    the model frame first (R^T n_k), so one product over the model points does all four.
+    """
+    normals = np.zeros((len(boxes_norm), 4, 3))
+    normals[:, _SIDE_INDEX, _SIDE_COORD] = 1.0
+    normals[:, :, 2] = -boxes_norm
+    normals[:, :2] *= -1.0
+    return np.argmax((normals @ rotations) @ np.swapaxes(points, 1, 2), axis=2)
 
 
 def _touching_points(rotated, rows, touching):
@@ -157,16 +165,17 @@ def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights
     boxes_norm = (boxes_uv - [cx, cy, cx, cy]) / [fx, fy, fx, fy]
     # (N, 3, M): R X with each coordinate contiguous over the points, so the per-iteration
     # passes below read whole rows (about 2x faster than (N, M, 3) for 8 objects).
-    rotated = rotations @ np.swapaxes(points, 1, 2)
     systems = _SideSystems(boxes_norm, weights)
     every = np.arange(n)
     iterations = np.zeros(n, dtype=int)
     if selection == 'tangent_planes':
-        touching = _tangent_indices(rotated, boxes_norm)
-        translations = systems.solve(every, _touching_points(rotated, every, touching))
+        touching = _tangent_indices(rotations, points, boxes_norm)
+        touching_points = np.einsum('nij,nkj->nki', rotations, points[every[:, None], touching])
+        translations = systems.solve(every, touching_points)
         return TranslationSolution(translations, touching, iterations, np.ones(n, dtype=bool))
     if selection != 'direct_then_perspective':
         raise ValueError(f'selection must be one of {SELECTIONS}, got {selection!r}')
+    rotated = rotations @ np.swapaxes(points, 1, 2)
     touching = _extreme_indices(rotated[:, 0], rotated[:, 1])
     translations = systems.solve(every, _touching_points(rotated, every, touching))
     active = np.ones(n, dtype=bool)
