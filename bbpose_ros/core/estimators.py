@@ -135,8 +135,9 @@ class QNetRotationEstimator:
         """
         Run every batch size 1..max_batch once, on blank crops.
 
-        oneDNN prepares its kernels on the first call with each input shape: 1-6 ms extra
-        per new batch size on 2 CPU cores. Done here, that stays out of the first frames.
+        Both backends prepare kernels and memory on the first call with each input shape
+        (torch's oneDNN: 1-6 ms extra per new batch size on 2 CPU cores). Done here, that
+        stays out of the first frames.
         """
         for count in range(1, max_batch + 1):
             self.network(*self._blank_batch(count))

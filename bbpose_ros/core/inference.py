@@ -111,7 +111,7 @@ class OnnxRuntimeRunner:
 
     def __call__(self, *inputs):
         """Run the network on CPU torch tensors; outputs are CPU torch tensors."""
-        feed = {name: x.detach().contiguous().numpy() for name, x in zip(self._inputs, inputs)}
+        feed = {name: x.contiguous().numpy() for name, x in zip(self._inputs, inputs)}
         outputs = [torch.from_numpy(y) for y in self._session.run(None, feed)]
         return outputs[0] if self._single else tuple(outputs)
 

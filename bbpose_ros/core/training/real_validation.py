@@ -21,7 +21,6 @@ rotation error (degrees) to the closest symmetric equivalent of the ground truth
 """
 
 import numpy as np
-import torch
 
 from bbpose_ros.core.estimators import QNetRotationEstimator
 from bbpose_ros.core.pipeline import Detection
@@ -56,14 +55,13 @@ class RealCrops:
         """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
         estimate = QNetRotationEstimator(network, backend='torch')
         errors = []
-        with torch.inference_mode():
-            for frame, image, instances in self.items:
-                detections = [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
-                rotations = estimate(image, frame.camera, detections)
-                for rotation, instance in zip(rotations, instances):
-                    candidates = instance.rotation @ self.symmetries[instance.object_name]
-                    cos = (np.einsum('ij,kij->k', rotation, candidates) - 1) / 2
-                    errors.append(np.degrees(np.arccos(np.clip(cos, -1, 1))).min())
+        for frame, image, instances in self.items:      # the runner is in inference mode
+            detections = [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
+            rotations = estimate(image, frame.camera, detections)
+            for rotation, instance in zip(rotations, instances):
+                candidates = instance.rotation @ self.symmetries[instance.object_name]
+                cos = (np.einsum('ij,kij->k', rotation, candidates) - 1) / 2
+                errors.append(np.degrees(np.arccos(np.clip(cos, -1, 1))).min())
         return np.array(errors)
 
     def figures(self, network):
