@@ -14,6 +14,7 @@
 
 """Inference backends: folded networks and ONNX Runtime compute what the trained net does."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -21,9 +22,16 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.estimators import QNetRotationEstimator
 from bbpose_ros.core.inference import inference_network, make_runner
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
+from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+RNG = np.random.default_rng(5)
+
+
+def _images(count, height, width):
+    """(count, height, width, 3) random uint8 RGB images."""
+    return RNG.integers(0, 256, (count, height, width, 3), dtype=np.uint8)
 
 
 def _trained_looking(network):
@@ -50,11 +58,11 @@ def test_folded_copy_computes_the_same_function():
 @pytest.mark.parametrize('batch', [1, 3, 8])
 def test_onnxruntime_qnet_matches_torch_for_any_batch(batch):
     net = _trained_looking(QNet(QNetConfig(OBJECTS)))
-    example = (torch.rand(2, 3, 48, 48), torch.tensor([0, 1]))     # traced with batch 2
+    example = (_images(2, 48, 48), np.array([0, 1]))     # traced with batch 2
     onnx = make_runner(net, example, 'onnxruntime', threads=1, dynamic_batch=True)
-    crops, index = torch.rand(batch, 3, 48, 48), torch.randint(0, len(OBJECTS), (batch,))
+    crops, index = _images(batch, 48, 48), RNG.integers(0, len(OBJECTS), batch)
     with torch.inference_mode():
-        expected = net(crops, index)
+        expected = net(images_to_input(torch.from_numpy(crops)), torch.from_numpy(index))
     torch.testing.assert_close(onnx(crops, index), expected, atol=1e-5, rtol=0)
     torch.testing.assert_close(make_runner(net, example, 'torch')(crops, index), expected,
                                atol=1e-5, rtol=0)
@@ -63,9 +71,9 @@ def test_onnxruntime_qnet_matches_torch_for_any_batch(batch):
 def test_onnxruntime_detector_matches_torch():
     net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS)))
     width, height = net.config.input_size
-    image = torch.rand(1, 3, height, width)
+    image = _images(1, height, width)
     with torch.inference_mode():
-        expected = net(image)
+        expected = net(images_to_input(torch.from_numpy(image)))
     outputs = make_runner(net, (image,), 'onnxruntime', threads=1)(image)
     assert len(outputs) == len(expected) == 2
     for got, want in zip(outputs, expected):
@@ -74,7 +82,7 @@ def test_onnxruntime_detector_matches_torch():
 
 def test_backend_choice_is_checked():
     net = QNet(QNetConfig(OBJECTS)).eval()
-    example = (torch.rand(1, 3, 48, 48), torch.tensor([0]))
+    example = (_images(1, 48, 48), np.array([0]))
     with pytest.raises(InputError, match='"tensorrt" is not one of onnxruntime, torch'):
         make_runner(net, example, 'tensorrt')
     with pytest.raises(InputError, match='CPU only, not on device "cuda"'):

@@ -72,6 +72,11 @@ def test_allocentric_round_trip_and_optical_axis_identity():
     views = rot.ray_rotation(rays)
     unit = rays / np.linalg.norm(rays, axis=1, keepdims=True)
     np.testing.assert_allclose(views @ [0.0, 0.0, 1.0], unit, atol=1e-12)
+    # The smallest such rotation: about z x r by the angle between z and r.
+    axis = np.cross([0.0, 0.0, 1.0], unit)
+    angle = np.arctan2(np.linalg.norm(axis, axis=1), unit[:, 2])
+    rotvec = axis / np.linalg.norm(axis, axis=1, keepdims=True) * angle[:, None]
+    np.testing.assert_allclose(views, Rotation.from_rotvec(rotvec).as_matrix(), atol=1e-12)
 
 
 def test_camera_from_k_p_and_scaling():

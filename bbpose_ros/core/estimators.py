@@ -40,12 +40,6 @@ from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIG
 MAX_WARM_UP_BATCH = 16
 
 
-def image_tensor(images_nhwc):
-    """(N, H, W, 3) uint8 -> (N, 3, H, W) float 0..1 CPU tensor in channels_last layout."""
-    tensor = torch.from_numpy(np.ascontiguousarray(images_nhwc))
-    return tensor.permute(0, 3, 1, 2).float().div_(255.0)
-
-
 class BoxDetector:
     """
     Detector callable: ``detect(image_rgb (H, W, 3) uint8) -> list[Detection]``.
@@ -64,8 +58,7 @@ class BoxDetector:
         self.config = network.config
         in_w, in_h = self.config.input_size
         self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
-        self.network = make_runner(network, (image_tensor(self.blank),), backend, device,
-                                   threads)
+        self.network = make_runner(network, (self.blank,), backend, device, threads)
         self.wanted = np.array([name in set(names) for name in self.config.objects])
         self.score_threshold = score_threshold
         self.max_instances = max_instances
@@ -75,7 +68,7 @@ class BoxDetector:
         height, width = image_rgb.shape[:2]
         in_w, in_h = self.config.input_size
         small = cv2.resize(image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
-        heat, box = self.network(image_tensor(small[None]))
+        heat, box = self.network(small[None])
         classes, scores, boxes = decode(heat[0].cpu(), box[0].cpu(), self.config.stride,
                                         self.score_threshold, self.max_instances)
         scale = np.array([width / in_w, height / in_h] * 2)
@@ -86,7 +79,7 @@ class BoxDetector:
 
     def warm_up(self):
         """Run the network once on a blank input (see QNetRotationEstimator.warm_up)."""
-        self.network(image_tensor(self.blank))
+        self.network(self.blank)
 
 
 class QNetRotationEstimator:
@@ -119,8 +112,8 @@ class QNetRotationEstimator:
         boxes = np.stack([d.box_uv for d in detections])
         crops = extract_crops(image_rgb, square_boxes(boxes, self.config.context),
                               self.config.crop_size)
-        index = torch.tensor([self.index[d.object_name] for d in detections])
-        q_wxyz = self.network(image_tensor(crops), index)
+        index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
+        q_wxyz = self.network(crops, index)
         rotations = quat_wxyz_to_matrix(q_wxyz.cpu().numpy().astype(float))
         if self.config.rotation_target == 'allocentric':
             rotations = allocentric_to_egocentric(rotations, box_centre_rays(boxes, camera))
@@ -129,7 +122,7 @@ class QNetRotationEstimator:
     def _blank_batch(self, count):
         size = self.config.crop_size
         crops = np.full((count, size, size, 3), FILL_VALUE, dtype=np.uint8)
-        return image_tensor(crops), torch.zeros(count, dtype=torch.long)
+        return crops, np.zeros(count, dtype=np.int64)
 
     def warm_up(self, max_batch):
         """

@@ -22,7 +22,10 @@ Trained networks prepared for inference, run by one of two backends.
   the weights from cache between calls, 1.4x and 1.2x faster (README "Performance").
 * 'torch': eager PyTorch under ``inference_mode``; the one for a CUDA device.
 
-Both take and return torch tensors, so that the estimators do not depend on the backend.
+Both are called the same way, so that the estimators do not depend on the backend: numpy
+inputs, the first one the (N, H, W, 3) uint8 RGB images (crops or frame) as they are (the
+conversion to the networks' float input runs inside them, see ``nets.images``), and torch
+tensors out.
 """
 
 import copy
@@ -34,6 +37,7 @@ from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.nets.images import ImageInput
 
 BACKENDS = ('onnxruntime', 'torch')
 
@@ -58,26 +62,27 @@ def inference_network(network, device='cpu'):
 
 
 class TorchRunner:
-    """Eager PyTorch: ``runner(*inputs)`` returns what the network's forward returns."""
+    """Eager PyTorch: ``runner(images, *rest)`` returns the network's outputs."""
 
     def __init__(self, network, device='cpu'):
-        self.network = inference_network(network, device)
+        self.network = ImageInput(inference_network(network, device))
         self.device = device
 
     def __call__(self, *inputs):
-        """Run the network on torch tensors (moved to the runner's device)."""
+        """Run the network on numpy inputs (uint8 images first) on the runner's device."""
         with torch.inference_mode():
-            return self.network(*[x.to(self.device) for x in inputs])
+            return self.network(*[torch.from_numpy(x).to(self.device) for x in inputs])
 
 
 class OnnxRuntimeRunner:
     """
-    ONNX Runtime on the CPU: ``runner(*inputs)`` returns what the network's forward returns.
+    ONNX Runtime on the CPU: ``runner(images, *rest)`` returns the network's outputs.
 
     Args:
         network: an eval-mode network whose forward has no data-dependent control flow (it
             is traced once with ``example_inputs``).
-        example_inputs: tuple of tensors of the forward's inputs.
+        example_inputs: tuple of numpy arrays: (N, H, W, 3) uint8 images, then the forward's
+            other inputs.
         dynamic_batch: whether the first axis of every input and output may vary.
         threads: ONNX Runtime intra-op threads (None: one per physical core).
 
@@ -87,7 +92,8 @@ class OnnxRuntimeRunner:
         import onnxruntime
 
         inputs = [f'input{k}' for k in range(len(example_inputs))]
-        prepared = inference_network(network)
+        prepared = ImageInput(inference_network(network))
+        example_inputs = tuple(torch.from_numpy(x) for x in example_inputs)
         with torch.inference_mode():
             outputs = prepared(*example_inputs)
         self._single = isinstance(outputs, torch.Tensor)
@@ -98,7 +104,7 @@ class OnnxRuntimeRunner:
             # The TorchScript-based exporter exports in ~0.1 s; the newer torch.export one
             # took 2-7 s per network, too slow for a node's start.
             warnings.simplefilter('ignore')
-            torch.onnx.export(prepared, tuple(example_inputs), model, input_names=inputs,
+            torch.onnx.export(prepared, example_inputs, model, input_names=inputs,
                               output_names=names, dynamic_axes=batch_axes, dynamo=False)
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads or 0
@@ -110,8 +116,8 @@ class OnnxRuntimeRunner:
         self._inputs = inputs
 
     def __call__(self, *inputs):
-        """Run the network on CPU torch tensors; outputs are CPU torch tensors."""
-        feed = {name: x.contiguous().numpy() for name, x in zip(self._inputs, inputs)}
+        """Run the network on numpy inputs (uint8 images first); outputs are torch tensors."""
+        feed = dict(zip(self._inputs, inputs))
         outputs = [torch.from_numpy(y) for y in self._session.run(None, feed)]
         return outputs[0] if self._single else tuple(outputs)
 
@@ -123,7 +129,8 @@ def make_runner(network, example_inputs, backend='onnxruntime', device='cpu', th
 
     Args:
         network: the trained network.
-        example_inputs: tuple of tensors of its forward's inputs (traced by 'onnxruntime').
+        example_inputs: tuple of numpy arrays, (N, H, W, 3) uint8 images then the forward's
+            other inputs (traced by 'onnxruntime').
         backend: one of BACKENDS.
         device: torch device; 'onnxruntime' runs on 'cpu' only.
         threads: intra-op threads of ONNX Runtime (torch's are set with

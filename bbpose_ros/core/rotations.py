@@ -111,14 +111,17 @@ def ray_rotation(rays):
     This is the view correction between allocentric and egocentric rotation: an object seen
     along ``ray`` with egocentric rotation R_ego looks, in a crop centred on it, like an
     object on the optical axis with allocentric rotation R_allo = V^T R_ego.
+
+    V is the smallest rotation taking z onto the unit ray r (about the axis z x r), in
+    Rodrigues' form without trigonometry: V = I + K + K^2 / (1 + r_z), K the cross-product
+    matrix of z x r. Rays must point forward (r_z > 0), as every camera ray in front of it.
     """
     rays = np.asarray(rays, dtype=float).reshape(-1, 3)
-    rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-    axis = np.cross(np.array([0.0, 0.0, 1.0]), rays)
-    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
-    angle = np.arctan2(sin[:, 0], rays[:, 2])
-    unit_axis = np.where(sin > 1e-12, axis / np.maximum(sin, 1e-12), 0.0)
-    return Rotation.from_rotvec(unit_axis * angle[:, None]).as_matrix()
+    x, y, z = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).T
+    shrink = 1.0 / (1.0 + z)
+    return np.stack([1.0 - x * x * shrink, -x * y * shrink, x,
+                     -x * y * shrink, 1.0 - y * y * shrink, y,
+                     -x, -y, z], axis=-1).reshape(-1, 3, 3)
 
 
 def allocentric_to_egocentric(rotation_allo, rays):

@@ -61,7 +61,7 @@ def extract_crops(image, squares, size):
         if factor > 1:
             region = cv2.resize(region, (side // factor, side // factor),
                                 interpolation=cv2.INTER_AREA)
-        crops[k] = cv2.resize(region, (size, size), interpolation=cv2.INTER_LINEAR)
+        cv2.resize(region, (size, size), dst=crops[k], interpolation=cv2.INTER_LINEAR)
     return crops
 
 

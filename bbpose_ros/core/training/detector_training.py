@@ -34,6 +34,7 @@ import torch.nn.functional as F
 
 from bbpose_ros.core.evaluation import box_iou
 from bbpose_ros.core.nets.detector import decode
+from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import photometric
 
 
@@ -91,7 +92,7 @@ class DetectorBatches:
                            axis=1) * stride
         images = np.stack([self.cache.images[s, y:y + height, x:x + width]
                            for s, (x, y) in zip(scenes, offsets)])
-        images = torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(255.0)
+        images = images_to_input(torch.from_numpy(images))
         if augment > 0:
             images = photometric(images, self.generator, augment)
         targets = [self._targets(self.by_scene[s], offset, width, height)

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from bbpose_ros.core.nets.crops import box_centre_rays
+from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
 from bbpose_ros.core.training.augment import photometric
@@ -89,7 +90,7 @@ class QNetBatches:
         """Build a batch of the instances ``ids`` with the given jitter and augmentation."""
         cache, config = self.cache, self.config
         crops, boxes = cache.input_crops(ids, rng, box_sigma, config.crop_size, config.context)
-        images = torch.from_numpy(crops).permute(0, 3, 1, 2).float().div_(255.0)
+        images = images_to_input(torch.from_numpy(crops))
         if augment > 0:
             images = photometric(images, self.generator, augment)
         rotations = cache.rotation[ids].astype(float)
