@@ -17,9 +17,11 @@ Q-Net: a small CNN that regresses one unit quaternion (wxyz) from a square objec
 
 The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling (stride 2),
 then fully connected layers, then the q-normalization layer. Batch normalisation after each
-convolution speeds up CPU training; it costs next to nothing at inference. Widths are kept
-small so that all the crops of a frame (up to 8 at 48x48) run within Q-Net's 2 ms budget on
-2 CPU cores: (12, 24, 48, 64) takes half the time of (16, 32, 64, 64) (``bbpose bench``).
+convolution speeds up CPU training; it costs next to nothing at inference (it is folded into
+the convolution). Widths are kept small so that all the crops of a frame (up to 8 at 48x48)
+run within Q-Net's 2 ms budget on 2 CPU cores: (8, 16, 32, 64) does 2.6 M multiply-adds a
+crop, about half of (12, 24, 48, 64), trained by the same recipe to the same accuracy on real
+frames (README "Performance").
 
 Options (``QNetConfig``), the paper's version being the default where it has one:
 
@@ -68,7 +70,7 @@ class QNetConfig:
     objects: tuple
     crop_size: int = 48
     context: float = 1.2
-    channels: tuple = (12, 24, 48, 64)
+    channels: tuple = (8, 16, 32, 64)
     fc_size: int = 256
     rotation_target: str = 'egocentric'
     sharing: str = 'shared'
