@@ -168,8 +168,8 @@ def summarize_graph(latencies, published, node_start, node_end, node_counts, rss
         'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'rss_settled_mb' (the first
         sample RSS_SETTLE_S into the run; None in a shorter run),
         'rss_growth_after_settle_percent', 'rss_trace_mb', 'counts'}, 'budgets'}. The budget
-        is on 'rss_growth_percent'; the settled figures tell a one-off step while the
-        transport's buffers fill from a steady climb.
+        is on 'rss_growth_percent'; the settled figures tell a one-off step in the first
+        seconds from a steady climb.
 
     """
     answers = [frame['answer'] for frame in latencies if 'answer' in frame]

@@ -114,7 +114,7 @@ class QNetRotationEstimator:
                               self.config.crop_size)
         index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
         q_wxyz = self.network(crops, index)
-        rotations = quat_wxyz_to_matrix(q_wxyz.cpu().numpy().astype(float))
+        rotations = quat_wxyz_to_matrix(q_wxyz.cpu().numpy())
         if self.config.rotation_target == 'allocentric':
             rotations = allocentric_to_egocentric(rotations, box_centre_rays(boxes, camera))
         return rotations

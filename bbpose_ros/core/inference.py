@@ -17,9 +17,10 @@ Trained networks prepared for inference, run by one of two backends.
 
 * 'onnxruntime' (the default): the prepared network is exported to ONNX in memory (nothing
   is written; ~0.3 s at load) and run by ONNX Runtime's CPU kernels. On 2 CPU cores without
-  AVX-512, one thread, in a tight loop it ran Q-Net on 8 crops in 1.5 ms instead of 2.6 ms
-  and the detector in 5.0 ms instead of 9.5 ms; in the pipeline, where other work evicts
-  the weights from cache between calls, 1.4x and 1.2x faster (README "Performance").
+  AVX-512, one thread, in a tight loop it ran the (12, 24, 48, 64)-channel Q-Net on 8 crops
+  in 1.5 ms instead of 2.6 ms and the detector in 5.0 ms instead of 9.5 ms; in the
+  pipeline, where other work evicts the weights from cache between calls, 1.4x and 1.2x
+  faster (README "Performance").
 * 'torch': eager PyTorch under ``inference_mode``; the one for a CUDA device.
 
 Both are called the same way, so that the estimators do not depend on the backend: numpy

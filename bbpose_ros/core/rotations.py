@@ -119,8 +119,9 @@ def ray_rotation(rays):
     rays = np.asarray(rays, dtype=float).reshape(-1, 3)
     x, y, z = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).T
     shrink = 1.0 / (1.0 + z)
-    return np.stack([1.0 - x * x * shrink, -x * y * shrink, x,
-                     -x * y * shrink, 1.0 - y * y * shrink, y,
+    xy = -x * y * shrink
+    return np.stack([1.0 - x * x * shrink, xy, x,
+                     xy, 1.0 - y * y * shrink, y,
                      -x, -y, z], axis=-1).reshape(-1, 3, 3)
 
 
