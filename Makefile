@@ -78,8 +78,9 @@ weights: setup photos
 		--seed 2 --crops 40000 --backgrounds $(PHOTOS)
 	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
 		--run-dir $(CACHE)/runs/qnet --rotation-target allocentric --sign-invariant \
-		--channels 8,16,32,64 --steps 50000 --every 1000 --threads 1 --real-val
+		--channels 8,16,24,32 --first-stride 2 --steps 50000 --every 1000 --threads 1 \
+		--real-val
 	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
 		--extra-cache $(CACHE)/crops_photos --run-dir $(CACHE)/runs/qnet \
-		--rotation-target allocentric --sign-invariant --channels 8,16,32,64 \
+		--rotation-target allocentric --sign-invariant --channels 8,16,24,32 --first-stride 2 \
 		--steps 75000 --every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt

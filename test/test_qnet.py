@@ -88,13 +88,25 @@ def test_targets_are_on_the_positive_hemisphere():
 
 @pytest.mark.parametrize('crop_size', [48, 64])
 @pytest.mark.parametrize('sharing', ['shared', 'per_object'])
-def test_qnet_outputs_unit_quaternions(crop_size, sharing):
-    net = QNet(QNetConfig(OBJECTS, crop_size=crop_size, sharing=sharing)).eval()
+@pytest.mark.parametrize('first_stride', [1, 2])
+def test_qnet_outputs_unit_quaternions(crop_size, sharing, first_stride):
+    config = QNetConfig(OBJECTS, crop_size=crop_size, sharing=sharing, first_stride=first_stride)
+    net = QNet(config).eval()
+    pools = [m for m in net.trunks[0] if isinstance(m, torch.nn.MaxPool2d)]
+    assert len(pools) == len(config.channels) + 1 - first_stride
     crops = torch.rand(5, 3, crop_size, crop_size)
     with torch.inference_mode():
         q = net(crops, torch.tensor([0, 5, 6, 7, 0]))
     assert q.shape == (5, 4)
     torch.testing.assert_close(q.norm(dim=1), torch.ones(5))
+
+
+def test_first_stride_is_checked():
+    with pytest.raises(ValueError, match='first_stride'):
+        QNetConfig(OBJECTS, first_stride=3)
+    older = QNetConfig(OBJECTS).to_dict()
+    del older['first_stride']    # weight files written before the option: the paper's stride
+    assert QNetConfig.from_dict(older).first_stride == 1
 
 
 def test_allocentric_output_is_turned_egocentric():

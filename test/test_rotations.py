@@ -63,6 +63,22 @@ def test_euler_error_of_a_turn_about_x():
     assert rot.euler_error_deg(MATRICES, MATRICES).max() == pytest.approx(0.0, abs=1e-9)
 
 
+def test_quaternion_product_composes_rotations_at_any_length():
+    rng = np.random.default_rng(3)
+    p, q = rng.normal(size=(2, 50, 4))
+    product = rot.quat_multiply(p, q)
+    np.testing.assert_allclose(rot.quat_wxyz_to_matrix(product),
+                               rot.quat_wxyz_to_matrix(p) @ rot.quat_wxyz_to_matrix(q),
+                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(product, axis=1),
+                               np.linalg.norm(p, axis=1) * np.linalg.norm(q, axis=1))
+    composed = Rotation.from_quat(rot.wxyz_to_xyzw(p)) * Rotation.from_quat(rot.wxyz_to_xyzw(q))
+    unit = product / np.linalg.norm(product, axis=1, keepdims=True)
+    np.testing.assert_allclose(rot.positive_hemisphere(unit),
+                               rot.positive_hemisphere(rot.xyzw_to_wxyz(composed.as_quat())),
+                               atol=1e-12)
+
+
 def test_allocentric_round_trip_and_optical_axis_identity():
     rays = np.random.default_rng(0).normal(size=(200, 3)) * [0.4, 0.3, 0.0] + [0, 0, 1]
     allo = rot.egocentric_to_allocentric(MATRICES, rays)

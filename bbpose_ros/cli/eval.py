@@ -38,6 +38,10 @@ def add_parser(subparsers):
                         help='2D boxes from the ground truth (amodal bbox_obj) or the detector')
     parser.add_argument('--rotation', choices=('gt', 'qnet'), default='qnet',
                         help='rotations from the ground truth or from Q-Net')
+    parser.add_argument('--detector-weights', type=Path, default=None,
+                        help='detector weight file (default: the shipped one)')
+    parser.add_argument('--qnet-weights', type=Path, default=None,
+                        help='Q-Net weight file (default: the shipped one)')
     add_objects_argument(parser)
     add_frames_argument(parser)
     parser.add_argument('--min-visib', type=float, default=0.1,
@@ -46,12 +50,12 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def build_pipeline(models, boxes, rotation):
+def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     if boxes == 'gt' and rotation == 'gt':
         return PosePipeline(models)
     from bbpose_ros.core.estimators import load_pipeline
-    return load_pipeline(models)
+    return load_pipeline(models, detector_weights, qnet_weights)
 
 
 class RecordingDetector:
@@ -74,12 +78,17 @@ class RecordingDetector:
         return detections
 
 
+def _weights_name(path):
+    return 'shipped' if path is None else str(path)
+
+
 def run(args):
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
-    pipeline = build_pipeline(models, args.boxes, args.rotation)
+    pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
+                              args.qnet_weights)
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
@@ -92,7 +101,9 @@ def run(args):
         detection = score_detections(frames, recorder.calls, list(models), args.min_visib)
         report['detection'] = {**detection['detection'], 'mean': detection['mean']}
     report['config'] = {'dataset': str(args.dataset), 'boxes': args.boxes,
-                        'rotation': args.rotation, 'min_visib': args.min_visib}
+                        'rotation': args.rotation, 'min_visib': args.min_visib,
+                        'detector_weights': _weights_name(args.detector_weights),
+                        'qnet_weights': _weights_name(args.qnet_weights)}
     print(format_report(report))
     if detection is not None:
         print(f'\ndetector, IoU >= 0.5, instances with visib_fract >= {args.min_visib} '

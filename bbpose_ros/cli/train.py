@@ -131,6 +131,9 @@ def _qnet_options(parser):
     parser.add_argument('--channels', type=_int_tuple, default=QNET_CHANNELS,
                         help='widths of the conv + max-pool stages, comma separated '
                              '(default %(default)s)')
+    parser.add_argument('--first-stride', type=int, choices=(1, 2), default=1,
+                        help='stride of the first convolution: 1 (paper), or 2 in place of '
+                             'the first max-pool (default 1)')
     parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
                         help='more crop caches to train on, with the same objects, camera, '
                              'crop size and context as --cache')
@@ -205,7 +208,8 @@ def _qnet_setup(args):
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     cache, models = _load(args)
     config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
-                        rotation_target=args.rotation_target, sharing=args.sharing)
+                        first_stride=args.first_stride, rotation_target=args.rotation_target,
+                        sharing=args.sharing)
     settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant), args)
     if args.box_sigma_from is not None:
         settings.box_sigma = _measured_sigma(args.box_sigma_from)

@@ -97,6 +97,4 @@ class CameraIntrinsics:
 
     def normalized(self, uv):
         """Map (..., 2) pixels (u, v) to normalised image coordinates ((u-cx)/fx, (v-cy)/fy)."""
-        uv = np.asarray(uv, dtype=float)
-        return np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy],
-                        axis=-1)
+        return (np.asarray(uv, dtype=float) - (self.cx, self.cy)) / (self.fx, self.fy)

@@ -22,9 +22,12 @@ The learned stages as pipeline callables, and ``load_pipeline`` that wires them 
   with the ray through each box centre.
 """
 
+import copy
+
 import cv2
 import numpy as np
 import torch
+from torch import nn
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference import make_runner
@@ -32,7 +35,7 @@ from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALU
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.detector import decode
 from bbpose_ros.core.pipeline import Detection, PosePipeline
-from bbpose_ros.core.rotations import allocentric_to_egocentric, quat_wxyz_to_matrix
+from bbpose_ros.core.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
 from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
                                      load_network)
 
@@ -102,6 +105,10 @@ class QNetRotationEstimator:
             raise InputError(f'a per_object Q-Net runs only on the torch backend, not on '
                              f'{backend}')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
+        # The run leaves out the q-normalization layer: quaternions are only turned into
+        # matrices here, and quat_wxyz_to_matrix takes any length (three kernels fewer).
+        network = copy.deepcopy(network)
+        network.normalize = nn.Identity()
         self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
                                    dynamic_batch=True)
 
@@ -109,15 +116,15 @@ class QNetRotationEstimator:
         """Egocentric rotations (N, 3, 3), one per detection."""
         if not detections:
             return np.zeros((0, 3, 3))
-        boxes = np.stack([d.box_uv for d in detections])
+        boxes = np.array([d.box_uv for d in detections], dtype=float)
         crops = extract_crops(image_rgb, square_boxes(boxes, self.config.context),
                               self.config.crop_size)
         index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
-        q_wxyz = self.network(crops, index)
-        rotations = quat_wxyz_to_matrix(q_wxyz.cpu().numpy())
+        q_wxyz = self.network(crops, index).cpu().numpy()
         if self.config.rotation_target == 'allocentric':
-            rotations = allocentric_to_egocentric(rotations, box_centre_rays(boxes, camera))
-        return rotations
+            # R_ego = V R_allo, composed as quaternions: fewer array operations than matrices.
+            q_wxyz = quat_multiply(ray_quaternion(box_centre_rays(boxes, camera)), q_wxyz)
+        return quat_wxyz_to_matrix(q_wxyz)
 
     def _blank_batch(self, count):
         size = self.config.crop_size

@@ -19,9 +19,10 @@ The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling 
 then fully connected layers, then the q-normalization layer. Batch normalisation after each
 convolution speeds up CPU training; it costs next to nothing at inference (it is folded into
 the convolution). Widths are kept small so that all the crops of a frame (up to 8 at 48x48)
-run within Q-Net's 2 ms budget on 2 CPU cores: (8, 16, 32, 64) does 2.6 M multiply-adds a
-crop, about half of (12, 24, 48, 64), trained by the same recipe to the same accuracy on real
-frames (README "Performance").
+run within Q-Net's 2 ms budget on 2 CPU cores: the shipped (8, 16, 24, 32) with a stride-2
+first convolution does 1.6 M multiply-adds a crop, (8, 16, 32, 64) with the paper's stride
+2.6 M and (12, 24, 48, 64) 4.9 M; all three, trained by the same recipe, measure the same on
+real frames within a checkpoint's spread (README "Performance").
 
 Options (``QNetConfig``), the paper's version being the default where it has one:
 
@@ -31,6 +32,9 @@ Options (``QNetConfig``), the paper's version being the default where it has one
   (rotation relative to the ray through the box centre; see ``rotations.ray_rotation``);
 * ``sharing`` 'shared' (one trunk, one 4-output head per object) or 'per_object' (one whole
   network per object, as the paper trains them);
+* ``first_stride`` 1 (paper) or 2: the first convolution samples every second pixel instead
+  of being followed by a max-pool: three quarters of its multiply-adds go, and with them
+  the slowest kernel at inference (its 3 input channels use the vector units poorly);
 * ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison).
 """
 
@@ -59,6 +63,8 @@ class QNetConfig:
         crop_size: side of the square input crop in pixels.
         context: crop side / longest box side (>= 1 keeps context around the box).
         channels: output channels of the conv + max-pool stages.
+        first_stride: stride of the first convolution: 1 (paper), or 2 in place of the
+            first max-pool.
         fc_size: width of the hidden fully connected layer.
         rotation_target: 'egocentric' or 'allocentric'.
         sharing: 'shared' or 'per_object'.
@@ -70,7 +76,8 @@ class QNetConfig:
     objects: tuple
     crop_size: int = 48
     context: float = 1.2
-    channels: tuple = (8, 16, 32, 64)
+    channels: tuple = (8, 16, 24, 32)
+    first_stride: int = 1
     fc_size: int = 256
     rotation_target: str = 'egocentric'
     sharing: str = 'shared'
@@ -82,6 +89,8 @@ class QNetConfig:
             raise ValueError(f'rotation_target must be one of {ROTATION_TARGETS}')
         if self.sharing not in SHARING_MODES:
             raise ValueError(f'sharing must be one of {SHARING_MODES}')
+        if self.first_stride not in (1, 2):
+            raise ValueError(f'first_stride must be 1 or 2, not {self.first_stride}')
         if self.crop_size % 2 ** len(self.channels):
             raise ValueError(f'crop_size {self.crop_size} is not divisible by '
                              f'2^{len(self.channels)}')
@@ -105,9 +114,12 @@ class QNetConfig:
 def _trunk(config):
     """Conv + BN + ReLU + max-pool stages, flatten, hidden FC + ReLU + dropout."""
     layers, width = [], 3
-    for channels in config.channels:
-        layers += [nn.Conv2d(width, channels, 3, padding=1, bias=False),
-                   nn.BatchNorm2d(channels), nn.ReLU(inplace=True), nn.MaxPool2d(2)]
+    for stage, channels in enumerate(config.channels):
+        strided = stage == 0 and config.first_stride == 2
+        layers += [nn.Conv2d(width, channels, 3, stride=2 if strided else 1, padding=1,
+                             bias=False),
+                   nn.BatchNorm2d(channels), nn.ReLU(inplace=True)]
+        layers += [] if strided else [nn.MaxPool2d(2)]
         width = channels
     side = config.crop_size // 2 ** len(config.channels)
     layers += [nn.Flatten(), nn.Linear(width * side * side, config.fc_size),
@@ -154,7 +166,7 @@ class QNet(nn.Module):
             for k in torch.unique(object_index).tolist():
                 chosen = object_index == k
                 features[chosen] = self.trunks[k](x[chosen])
-        # Each crop's own head (written without len(x), so that a trace keeps the batch free).
-        raw = self.head(features).unflatten(1, (-1, 4))
-        raw = raw.gather(1, object_index.view(-1, 1, 1).expand(-1, 1, 4)).squeeze(1)
-        return self.normalize(raw)
+        # Each crop's own head: columns 4k..4k+3 of all heads' outputs. Offsets from a
+        # constant keep an exported graph free of shape computations (and the batch free).
+        columns = object_index.unsqueeze(1) * 4 + torch.arange(4, device=features.device)
+        return self.normalize(self.head(features).gather(1, columns))
