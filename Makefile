@@ -76,11 +76,10 @@ weights: setup photos
 		--crops 80000
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \
 		--seed 2 --crops 40000 --backgrounds $(PHOTOS)
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_upright \
+		--seed 3 --crops 40000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
-		--run-dir $(CACHE)/runs/qnet --rotation-target allocentric --sign-invariant \
-		--channels 8,16,24,32 --first-stride 2 --steps 50000 --every 1000 --threads 1 \
-		--real-val
-	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
-		--extra-cache $(CACHE)/crops_photos --run-dir $(CACHE)/runs/qnet \
-		--rotation-target allocentric --sign-invariant --channels 8,16,24,32 --first-stride 2 \
-		--steps 75000 --every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt
+		--extra-cache $(CACHE)/crops_photos $(CACHE)/crops_upright \
+		--run-dir $(CACHE)/runs/qnet_upright --rotation-target allocentric --sign-invariant \
+		--channels 8,16,24,32 --first-stride 2 --max-inplane-deg 45 --steps 40000 \
+		--every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt

@@ -23,7 +23,9 @@ from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.render import mask_box_uv, projected_box_uv
 from bbpose_ros.core.render.reference import render_silhouette
+from bbpose_ros.core.rotations import egocentric_to_allocentric
 from bbpose_ros.core.synth import SynthConfig, SyntheticSample, SyntheticScenes
+from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.synth.torch_dataset import SyntheticSceneDataset
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
@@ -143,9 +145,24 @@ def test_torch_dataset_indexes_samples(scenes, samples):
         dataset[2]
 
 
+def test_inplane_range_bounds_the_roll_of_every_instance(lmo_models):
+    config = SynthConfig(inplane_range_deg=(-20.0, 30.0), elevation_range_deg=(10.0, 60.0))
+    scenes = make_scenes(lmo_models, 11, config)
+    instances = [i for k in range(2) for i in scenes.sample(k).instances]
+    scenes.close()
+    rays = np.array([i.translation / np.linalg.norm(i.translation) for i in instances])
+    allocentric = egocentric_to_allocentric(np.array([i.rotation for i in instances]), rays)
+    _, elevation, inplane = np.degrees(viewpoint_angles(allocentric))
+    assert len(instances) >= 8
+    assert np.all((-20.0 - 1e-6 <= inplane) & (inplane <= 30.0 + 1e-6))
+    assert np.all((10.0 - 1e-6 <= elevation) & (elevation <= 60.0 + 1e-6))
+
+
 def test_bad_input_is_refused(lmo_models):
     with pytest.raises(InputError, match='distance_range'):
         SynthConfig(distance_range=(1.5, 0.35))
+    with pytest.raises(InputError, match='inplane_range_deg'):
+        SynthConfig(inplane_range_deg=(30.0, -30.0))
     with pytest.raises(InputError, match='jpeg_probability'):
         SynthConfig(jpeg_probability=2.0)
     with pytest.raises(InputError, match='both targets and distractors'):

@@ -71,6 +71,7 @@ def test_writes_a_bop_dataset(tmp_path, lmo_root):
     (['--count', '0'], '--count'),
     (['--count', '1', '--objects', 'ape,teapot'], 'teapot'),
     (['--count', '1', '--seed', '-3'], '--seed'),
+    (['--count', '1', '--inplane-range-deg', '30,-30'], 'inplane_range_deg'),
 ])
 def test_bad_input_is_an_input_error(tmp_path, lmo_root, argv, message):
     args = parse('--dataset', str(lmo_root), '--out', str(tmp_path / 'out'), *argv)

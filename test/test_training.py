@@ -25,10 +25,11 @@ from bbpose_ros.core.nets.detector import decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import quat_wxyz_to_matrix
+from bbpose_ros.core.synth.placement import viewpoint_angles, viewpoint_rotation
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
 from bbpose_ros.core.training.loop import run_loop, RunLog
-from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
+from bbpose_ros.core.training.qnet_training import inplane_deg, QNetBatches, QNetTrainSettings
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
@@ -118,6 +119,28 @@ def test_qnet_batches_are_on_the_hemisphere(lmo_models):
     assert images.shape == (8, 3, 48, 48) and candidates.shape[:2] == valid.shape
     assert torch.all(candidates[..., 0] >= 0)
     assert set(batches.val_ids) & set(batches.train_ids) == set()
+
+
+def test_viewpoint_angles_invert_viewpoint_rotation():
+    rng = np.random.default_rng(8)
+    angles = np.stack([rng.uniform(-np.pi, np.pi, 50), rng.uniform(-1.5, 1.5, 50),
+                       rng.uniform(-np.pi, np.pi, 50)], axis=1)
+    rotations = np.array([viewpoint_rotation(*a) for a in angles])
+    np.testing.assert_allclose(np.stack(viewpoint_angles(rotations), axis=1), angles,
+                               atol=1e-9)
+    # Straight down the azimuth is undefined: it is 0 and the whole turn is in-plane.
+    down = viewpoint_angles(viewpoint_rotation(0.0, np.pi / 2, 0.7)[None])
+    np.testing.assert_allclose(np.ravel(down), [0.0, np.pi / 2, 0.7], atol=1e-9)
+
+
+def test_max_inplane_keeps_only_upright_instances(lmo_models):
+    cache = _fake_cache(np.random.default_rng(6), scenes=8, per_scene=8)
+    roll = inplane_deg(cache)
+    settings = QNetTrainSettings(batch=8, val_fraction=0.25, max_inplane_deg=60.0)
+    batches = QNetBatches(cache, QNetConfig(OBJECTS), lmo_models, settings, 0)
+    kept = np.concatenate([batches.train_ids, batches.val_ids])
+    assert 0 < len(kept) < len(roll)
+    np.testing.assert_array_equal(np.sort(kept), np.flatnonzero(np.abs(roll) <= 60.0))
 
 
 @pytest.mark.parametrize('sign_invariant', [False, True])

@@ -32,11 +32,12 @@ FRAMES = 12
 # Measured with the shipped files on the 100 frames: detector recall @ IoU 0.5 (visible
 # fraction >= 0.3) 0.18, mean over objects (duck 0.56, ape 0.28, holepuncher 0.20, cat 0.19,
 # others 0.03-0.12); 0.19 on the first 12 frames. Q-Net (8, 16, 24, 32), first stride 2,
-# median rotation error with ground-truth boxes, mean over objects: 78.6 deg (81.4 deg on
-# the first 12 frames; a random guess gives ~126 deg).
+# trained on upright views, median rotation error with ground-truth boxes, mean over
+# objects: 49.7 deg (56.9 deg on the first 12 frames; the Q-Net trained on any roll before
+# it: 81.4; a random guess gives ~126 deg).
 # Raise these floors when better weights ship.
 DETECTOR_RECALL_FLOOR = 0.08
-ROTATION_MEDIAN_CEILING_DEG = 105.0
+ROTATION_MEDIAN_CEILING_DEG = 80.0
 
 
 @pytest.fixture(scope='module')

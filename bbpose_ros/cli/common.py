@@ -14,6 +14,8 @@
 
 """Argument helpers and output writing shared by the subcommands."""
 
+import argparse
+from dataclasses import replace
 import json
 import math
 import os
@@ -33,6 +35,30 @@ def add_objects_argument(parser):
     """Add ``--objects a,b,c`` (default: every object of the dataset)."""
     parser.add_argument('--objects', type=lambda text: [n for n in text.split(',') if n],
                         default=None, help='comma-separated object names (default: all)')
+
+
+def add_inplane_argument(parser):
+    """Add ``--inplane-range-deg LOW,HIGH`` (the synthetic objects' roll; default: any)."""
+    parser.add_argument('--inplane-range-deg', type=_float_pair, default=None,
+                        metavar='LOW,HIGH',
+                        help='roll of the rendered objects about the optical axis, degrees, '
+                             "0 when the model's z axis points up in the image, e.g. "
+                             '--inplane-range-deg=-60,60 for upright objects (default: any)')
+
+
+def with_inplane_range(config, args):
+    """Return the SynthConfig ``config`` with ``--inplane-range-deg`` applied when given."""
+    if args.inplane_range_deg is None:
+        return config
+    return replace(config, inplane_range_deg=args.inplane_range_deg)
+
+
+def _float_pair(text):
+    try:
+        low, high = (float(x) for x in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected LOW,HIGH, got {text!r}')
+    return low, high
 
 
 def add_frames_argument(parser):

@@ -28,6 +28,7 @@ import tempfile
 
 from tqdm import tqdm
 
+from bbpose_ros.cli.common import add_inplane_argument, with_inplane_range
 from bbpose_ros.core.bop import read_json
 from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
@@ -54,6 +55,7 @@ def add_parser(subparsers):
     parser.add_argument('--objects', default='',
                         help='comma-separated target objects, e.g. ape,can (default all); '
                              "the dataset's other objects appear as unlabelled distractors")
+    add_inplane_argument(parser)
     parser.add_argument('--previews', type=int, default=8,
                         help='number of preview images with boxes drawn (default 8)')
     parser.set_defaults(func=run)
@@ -89,7 +91,7 @@ def run(args):
     requested = [name.strip() for name in args.objects.split(',') if name.strip()]
     targets = resolve_object_names(requested, models)
     distractors = {name: model for name, model in models.items() if name not in targets}
-    config = SynthConfig()
+    config = with_inplane_range(SynthConfig(), args)
     scenes = SyntheticScenes({name: models[name] for name in targets}, camera, args.seed,
                              config, distractors)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -31,7 +31,8 @@ import json
 import os
 from pathlib import Path
 
-from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
+from bbpose_ros.cli.common import (add_dataset_argument, add_inplane_argument,
+                                   add_objects_argument, with_inplane_range)
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.qnet import QNetConfig
 
@@ -51,6 +52,7 @@ def add_parser(subparsers):
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
     _backgrounds_option(render)
+    add_inplane_argument(render)
     render.set_defaults(func=run_render)
 
     crops = sub.add_parser('render-crops', help='render a Q-Net crop cache')
@@ -64,6 +66,7 @@ def add_parser(subparsers):
     crops.add_argument('--box-sigma', type=float, default=0.06,
                        help='box jitter: per-side error / box size')
     _backgrounds_option(crops)
+    add_inplane_argument(crops)
     crops.set_defaults(func=run_render_crops)
 
     for stage, func in (('detector', run_detector), ('qnet', run_qnet)):
@@ -134,6 +137,9 @@ def _qnet_options(parser):
     parser.add_argument('--first-stride', type=int, choices=(1, 2), default=1,
                         help='stride of the first convolution: 1 (paper), or 2 in place of '
                              'the first max-pool (default 1)')
+    parser.add_argument('--max-inplane-deg', type=float, default=None,
+                        help='train only on crops rolled at most this much about the optical '
+                             'axis (an upright-object prior; default: all)')
     parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
                         help='more crop caches to train on, with the same objects, camera, '
                              'crop size and context as --cache')
@@ -167,12 +173,14 @@ def _load(args):
 def run_render(args):
     """Render the training cache."""
     from bbpose_ros.core.bop import BopDataset
-    from bbpose_ros.core.synth import SyntheticScenes
+    from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
     from bbpose_ros.core.training.cache import build_cache
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     camera = dataset.frames()[0].camera
-    scenes = SyntheticScenes(models, camera, seed=args.seed, backgrounds=_photos(args))
+    scenes = SyntheticScenes(models, camera, seed=args.seed,
+                             config=with_inplane_range(SynthConfig(), args),
+                             backgrounds=_photos(args))
     build_cache(scenes, args.cache, args.scenes, (320, 240), workers=args.workers)
     return 0
 
@@ -180,11 +188,12 @@ def run_render(args):
 def run_render_crops(args):
     """Render the Q-Net crop cache."""
     from bbpose_ros.core.bop import BopDataset
-    from bbpose_ros.core.synth.crop_scenes import CropScenes
+    from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
     from bbpose_ros.core.training.crop_cache import build_crop_cache
     dataset = BopDataset(args.dataset)
     scenes = CropScenes(dataset.load_models(args.objects), dataset.frames()[0].camera,
-                        seed=args.seed, crop_size=args.crop_size, context=args.context,
+                        seed=args.seed, config=with_inplane_range(CROP_SYNTH_CONFIG, args),
+                        crop_size=args.crop_size, context=args.context,
                         box_sigma=args.box_sigma, backgrounds=_photos(args))
     build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
     return 0
@@ -210,7 +219,8 @@ def _qnet_setup(args):
     config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
                         first_stride=args.first_stride, rotation_target=args.rotation_target,
                         sharing=args.sharing)
-    settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant), args)
+    settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant,
+                                           max_inplane_deg=args.max_inplane_deg), args)
     if args.box_sigma_from is not None:
         settings.box_sigma = _measured_sigma(args.box_sigma_from)
     if args.box_sigma is not None:

@@ -179,7 +179,8 @@ class CropScenes:
 
     def _pose(self, rng, key, uv, distance):
         """Egocentric pose of mesh ``key`` seen through pixel ``uv`` at ``distance`` metres."""
-        rotation_allo = random_allocentric_rotation(rng, self.config.elevation_range_deg)
+        rotation_allo = random_allocentric_rotation(rng, self.config.elevation_range_deg,
+                                                    self.config.inplane_range_deg)
         rotation, translation = pose_at_pixel(self.camera, uv, distance, rotation_allo)
         if translation[2] - self.radius[key] < _MIN_DISTANCE / 2:
             return None, None, None, None

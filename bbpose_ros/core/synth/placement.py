@@ -35,23 +35,54 @@ def viewpoint_rotation(azimuth, elevation, inplane):
     """
     position = np.array([np.cos(elevation) * np.cos(azimuth),
                          np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
-    z_axis = -position
-    x_axis = np.cross(z_axis, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x_axis) < 1e-6:  # looking straight down or up
-        x_axis = np.array([1.0, 0.0, 0.0])
-    x_axis /= np.linalg.norm(x_axis)
-    look_at = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis])
     cos, sin = np.cos(inplane), np.sin(inplane)
     roll = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
-    return roll @ look_at
+    return roll @ _look_at(-position[None])[0]
 
 
-def random_allocentric_rotation(rng, elevation_range_deg):
-    """(3, 3) rotation from a viewpoint uniform on the sphere band of the elevation range."""
+def viewpoint_angles(rotations_allo):
+    """
+    Inverse of ``viewpoint_rotation``: (azimuth, elevation, inplane), each (N,), radians.
+
+    ``rotations_allo`` (N, 3, 3) allocentric rotations; looking straight down or up, the
+    azimuth is 0 and all of the turn about the optical axis is ``inplane``.
+    """
+    rotations = np.asarray(rotations_allo, dtype=float)
+    position = -rotations[:, 2]
+    elevation = np.arcsin(np.clip(position[:, 2], -1.0, 1.0))
+    vertical = np.hypot(position[:, 0], position[:, 1]) < 1e-6
+    azimuth = np.where(vertical, 0.0, np.arctan2(position[:, 1], position[:, 0]))
+    look_at = _look_at(rotations[:, 2])
+    # Row 0 of roll @ look_at is cos(inplane) x - sin(inplane) y of the look-at rows.
+    inplane = np.arctan2(-np.einsum('ij,ij->i', rotations[:, 0], look_at[:, 1]),
+                         np.einsum('ij,ij->i', rotations[:, 0], look_at[:, 0]))
+    return azimuth, elevation, inplane
+
+
+def _look_at(z_axes):
+    """
+    (N, 3, 3) camera axes as rows, in the model frame, for viewing directions (N, 3).
+
+    No roll: the camera x axis is horizontal (z x model z), so the model's z axis points up
+    in the image; looking straight down or up, x is the model's x axis.
+    """
+    x_axes = np.cross(z_axes, [0.0, 0.0, 1.0])
+    norm = np.linalg.norm(x_axes, axis=1, keepdims=True)
+    x_axes = np.where(norm < 1e-6, [1.0, 0.0, 0.0], x_axes / np.maximum(norm, 1e-12))
+    return np.stack([x_axes, np.cross(z_axes, x_axes), z_axes], axis=1)
+
+
+def random_allocentric_rotation(rng, elevation_range_deg, inplane_range_deg=(0.0, 360.0)):
+    """
+    (3, 3) rotation from a random viewpoint.
+
+    The viewpoint is uniform on the sphere band of the elevation range, at any azimuth, and
+    the in-plane rotation uniform in ``inplane_range_deg``.
+    """
     low, high = np.sin(np.radians(elevation_range_deg))
     elevation = np.arcsin(rng.uniform(low, high))
     return viewpoint_rotation(rng.uniform(0.0, 2.0 * np.pi), elevation,
-                              rng.uniform(0.0, 2.0 * np.pi))
+                              rng.uniform(*np.radians(inplane_range_deg)))
 
 
 def pose_at_pixel(camera, uv, distance, rotation_allo):

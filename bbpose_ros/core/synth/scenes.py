@@ -183,7 +183,8 @@ class SyntheticScenes:
         """Place mesh ``key`` where ``choose_uv_distance(rng)`` says, in front of the camera."""
         for _ in range(_POSE_ATTEMPTS):
             uv, distance = choose_uv_distance(rng)
-            rotation_allo = random_allocentric_rotation(rng, self.config.elevation_range_deg)
+            rotation_allo = random_allocentric_rotation(rng, self.config.elevation_range_deg,
+                                                        self.config.inplane_range_deg)
             rotation, translation = pose_at_pixel(self.camera, uv, distance, rotation_allo)
             if translation[2] - self.radius[key] > _MIN_DEPTH:
                 return _Placed(key, rotation, translation, uv, distance)

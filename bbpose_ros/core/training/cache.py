@@ -97,7 +97,8 @@ def build_cache(scenes, cache_dir, count, input_size, workers=2, progress=True):
                        camera.height],
             'input_size': list(input_size), 'crop_size': CROP_SIZE,
             'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE,
-            'background_photos': photo_count(scenes)}
+            'background_photos': photo_count(scenes),
+            'inplane_range_deg': list(scenes.config.inplane_range_deg)}
     render_shards(cache_dir, meta, count, SHARD_SIZE, _init_worker,
                   (scenes, tuple(input_size)), _render, _write_shard, 'scene', workers, progress)
 

@@ -84,7 +84,8 @@ def build_crop_cache(scenes, cache_dir, count, workers=2, progress=True,
             'crop_size': scenes.crop_size, 'context': scenes.context,
             'box_sigma': scenes.box_sigma, 'min_visib': scenes.min_visib,
             'shard_size': shard_size,
-            'background_photos': photo_count(scenes)}
+            'background_photos': photo_count(scenes),
+            'inplane_range_deg': list(scenes.config.inplane_range_deg)}
     render_shards(cache_dir, meta, count, shard_size, _init_worker, (scenes,), _render,
                   partial(_write_shard, scenes.target_names), 'crop', workers, progress)
 

@@ -21,6 +21,10 @@ detector), cuts the square crop the estimator would cut, applies photometric aug
 and regresses the ground-truth quaternion (wxyz, q0 >= 0), egocentric or allocentric.
 Validation uses the last ``val_fraction`` of the scenes, never seen in training.
 
+``max_inplane_deg`` (not the paper's) trains only on instances whose roll about the optical axis
+(``placement.viewpoint_angles``: relative to the model's z axis pointing up in the crop) is
+within that many degrees: a pose prior for upright objects seen by a roughly upright camera.
+
 ``sign_invariant`` (not the paper's) also offers -q as a target, i.e. the loss becomes
 (1 - |q_pred . q|) / 2: q and -q are one rotation, and the q0 = 0 seam of the hemisphere
 rule, where the target jumps from q to -q, disappears.
@@ -35,6 +39,7 @@ from bbpose_ros.core.nets.crops import box_centre_rays
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
+from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.training.augment import photometric
 
 
@@ -50,6 +55,7 @@ class QNetTrainSettings:
     val_fraction: float = 0.05
     augment: float = 1.0
     sign_invariant: bool = False
+    max_inplane_deg: float = None
 
 
 class QNetBatches:
@@ -74,6 +80,8 @@ class QNetBatches:
         self.net_index = net_index[cache.object]
         held_out = cache.held_out(settings.val_fraction)
         usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)
+        if settings.max_inplane_deg is not None:
+            usable &= np.abs(inplane_deg(cache)) <= settings.max_inplane_deg
         self.train_ids = np.flatnonzero(usable & ~held_out)
         self.val_ids = np.flatnonzero(usable & held_out)
         self.symmetries, self.symmetry_valid = symmetry_rotations(
@@ -107,6 +115,13 @@ class QNetBatches:
         return (images.contiguous(memory_format=torch.channels_last),
                 torch.from_numpy(index), torch.from_numpy(quats).float(),
                 torch.from_numpy(valid))
+
+
+def inplane_deg(cache):
+    """(m,) roll of each cached instance about the ray through its amodal box centre, deg."""
+    rotations = egocentric_to_allocentric(cache.rotation.astype(float),
+                                          box_centre_rays(cache.box_uv, cache.camera))
+    return np.degrees(viewpoint_angles(rotations)[2])
 
 
 def symmetry_rotations(models):
