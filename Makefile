@@ -72,6 +72,11 @@ weights: setup photos
 	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes \
 		--run-dir $(CACHE)/runs/detector --steps 40000 --every 1000 \
 		--export bbpose_ros/weights/detector.pt
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_upright --seed 4 \
+		--scenes 4000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
+		--run-dir $(CACHE)/runs/detector --steps 55000 --every 1000 \
+		--export bbpose_ros/weights/detector.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops --seed 1 \
 		--crops 80000
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \

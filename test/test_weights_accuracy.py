@@ -30,8 +30,8 @@ from bbpose_ros.core.pipeline import FrameResult
 FRAMES = 12
 
 # Measured with the shipped files on the 100 frames: detector recall @ IoU 0.5 (visible
-# fraction >= 0.3) 0.18, mean over objects (duck 0.56, ape 0.28, holepuncher 0.20, cat 0.19,
-# others 0.03-0.12); 0.19 on the first 12 frames. Q-Net (8, 16, 24, 32), first stride 2,
+# fraction >= 0.3) 0.25, mean over objects (duck 0.61, ape 0.34, holepuncher 0.28, cat 0.25,
+# others 0.06-0.15); 0.18 on the first 12 frames. Q-Net (8, 16, 24, 32), first stride 2,
 # trained on upright views, median rotation error with ground-truth boxes, mean over
 # objects: 49.7 deg (56.9 deg on the first 12 frames; the Q-Net trained on any roll before
 # it: 81.4; a random guess gives ~126 deg).
