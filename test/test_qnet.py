@@ -23,8 +23,8 @@ from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.estimators import QNetRotationEstimator
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.nets.quaternion import (dot_product_loss, QNormalization,
-                                             symmetric_dot_product_loss)
+from bbpose_ros.core.nets.quaternion import (dot_product_loss, multi_hypothesis_loss,
+                                             QNormalization, symmetric_dot_product_loss)
 from bbpose_ros.core.pipeline import Detection
 from bbpose_ros.core.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
                                        ray_rotation, rotation_error_deg)
@@ -107,6 +107,37 @@ def test_first_stride_is_checked():
     older = QNetConfig(OBJECTS).to_dict()
     del older['first_stride']    # weight files written before the option: the paper's stride
     assert QNetConfig.from_dict(older).first_stride == 1
+
+
+def test_several_hypotheses_output_the_best_scored_one():
+    net = QNet(QNetConfig(OBJECTS, first_stride=2, hypotheses=3)).eval()
+    crops = torch.rand(6, 3, 48, 48)
+    index = torch.tensor([0, 1, 2, 5, 6, 7])
+    with torch.inference_mode():
+        quats, scores = net.hypotheses(crops, index)
+        output = net(crops, index)
+    assert quats.shape == (6, 3, 4) and scores.shape == (6, 3)
+    torch.testing.assert_close(quats.norm(dim=2), torch.ones(6, 3))
+    torch.testing.assert_close(output, quats[torch.arange(6), scores.argmax(dim=1)])
+    with pytest.raises(ValueError, match='hypotheses'):
+        QNetConfig(OBJECTS, hypotheses=0)
+    older = QNetConfig(OBJECTS).to_dict()
+    del older['hypotheses']    # weight files written before the option: one quaternion
+    assert QNetConfig.from_dict(older).hypotheses == 1
+
+
+def test_winner_takes_all_loss():
+    truth = torch.nn.functional.normalize(torch.tensor([[[0.9, 0.1, -0.3, 0.2]]]), dim=-1)
+    valid = torch.ones(1, 1, dtype=torch.bool)
+    wrong = torch.tensor([[[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]])
+    quats = torch.cat([wrong[:, :1], truth, wrong[:, 1:]], dim=1)     # hypothesis 1 is right
+    others = symmetric_dot_product_loss(wrong[0], truth.expand(2, 1, 4), valid.expand(2, 1))
+    for scores, right in ((torch.tensor([[0.0, 9.0, 0.0]]), True),
+                          (torch.tensor([[9.0, 0.0, 0.0]]), False)):
+        loss = multi_hypothesis_loss(quats, scores, truth, valid, relax=0.1, score_weight=1.0)
+        cross_entropy = torch.nn.functional.cross_entropy(scores, torch.tensor([1]))
+        torch.testing.assert_close(loss, 0.05 * others.sum() + cross_entropy.view(1))
+        assert (float(cross_entropy) < 1e-3) == right
 
 
 def test_allocentric_output_is_turned_egocentric():

@@ -29,15 +29,18 @@ from bbpose_ros.core.synth.placement import viewpoint_angles, viewpoint_rotation
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
 from bbpose_ros.core.training.loop import run_loop, RunLog
-from bbpose_ros.core.training.qnet_training import inplane_deg, QNetBatches, QNetTrainSettings
+from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
+                                                    QNetTrainSettings)
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 
 
-def test_tiny_qnet_run_lowers_the_loss():
+@pytest.mark.parametrize('hypotheses', [1, 3])
+def test_tiny_qnet_run_lowers_the_loss(hypotheses):
     torch.manual_seed(0)
-    net = QNet(QNetConfig(OBJECTS[:2], channels=(8, 8, 16, 16), fc_size=32, dropout=0.0))
+    net = QNet(QNetConfig(OBJECTS[:2], channels=(8, 8, 16, 16), fc_size=32, dropout=0.0,
+                          hypotheses=hypotheses))
     crops = torch.rand(16, 3, 48, 48)
     index = torch.arange(16) % 2
     target = torch.nn.functional.normalize(torch.randn(16, 1, 4), dim=-1)
@@ -46,7 +49,7 @@ def test_tiny_qnet_run_lowers_the_loss():
     optimizer = torch.optim.Adam(net.parameters(), 3e-3)
     losses = []
     for _ in range(60):
-        loss = symmetric_dot_product_loss(net(crops, index), target, valid).mean()
+        loss = qnet_loss(net, crops, index, target, valid).mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -167,3 +170,11 @@ def test_train_cli_without_a_cache_is_a_clear_error(tmp_path, lmo_root, capsys):
                  '--run-dir', str(tmp_path / 'run'), '--steps', '1'])
     assert code == 2
     assert 'no training cache' in capsys.readouterr().err
+
+
+def test_train_cli_refuses_zero_hypotheses(tmp_path, lmo_root, capsys):
+    code = main(['train', 'qnet', '--dataset', str(lmo_root), '--cache', str(tmp_path),
+                 '--run-dir', str(tmp_path / 'run'), '--steps', '1', '--hypotheses', '0'])
+    assert code == 2
+    assert '--hypotheses must be at least 1' in capsys.readouterr().err
+    assert not (tmp_path / 'run').exists()

@@ -137,6 +137,9 @@ def _qnet_options(parser):
     parser.add_argument('--first-stride', type=int, choices=(1, 2), default=1,
                         help='stride of the first convolution: 1 (paper), or 2 in place of '
                              'the first max-pool (default 1)')
+    parser.add_argument('--hypotheses', type=int, default=1,
+                        help='quaternions per head, trained winner-takes-all, the best-scored '
+                             'one is the output (paper: 1)')
     parser.add_argument('--max-inplane-deg', type=float, default=None,
                         help='train only on crops rolled at most this much about the optical '
                              'axis (an upright-object prior; default: all)')
@@ -215,10 +218,12 @@ def run_detector(args):
 def _qnet_setup(args):
     from bbpose_ros.core.nets.qnet import QNetConfig
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
+    if args.hypotheses < 1:
+        raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
     cache, models = _load(args)
     config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
                         first_stride=args.first_stride, rotation_target=args.rotation_target,
-                        sharing=args.sharing)
+                        sharing=args.sharing, hypotheses=args.hypotheses)
     settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant,
                                            max_inplane_deg=args.max_inplane_deg), args)
     if args.box_sigma_from is not None:

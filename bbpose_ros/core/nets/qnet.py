@@ -35,7 +35,12 @@ Options (``QNetConfig``), the paper's version being the default where it has one
 * ``first_stride`` 1 (paper) or 2: the first convolution samples every second pixel instead
   of being followed by a max-pool: three quarters of its multiply-adds go, and with them
   the slowest kernel at inference (its 3 input channels use the vector units poorly);
-* ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison).
+* ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison);
+* ``hypotheses`` 1 (paper) or H > 1: each head gives H quaternions and H scores, trained
+  winner-takes-all (``qnet_training.multi_hypothesis_loss``) and the best-scored one is the
+  output. One regressed quaternion lands between the views a crop cannot tell apart (a
+  front and a back that look alike at 48x48); H of them can each settle on one
+  (Rupprecht et al., ICCV 2017; Manhardt et al., ICCV 2019).
 """
 
 from dataclasses import asdict, dataclass
@@ -70,6 +75,7 @@ class QNetConfig:
         sharing: 'shared' or 'per_object'.
         q_normalization: whether the q-normalization layer ends the network.
         dropout: dropout probability after the hidden FC layer (training only).
+        hypotheses: quaternions per head; the output is the best-scored one.
 
     """
 
@@ -83,6 +89,7 @@ class QNetConfig:
     sharing: str = 'shared'
     q_normalization: bool = True
     dropout: float = 0.2
+    hypotheses: int = 1
 
     def __post_init__(self):
         if self.rotation_target not in ROTATION_TARGETS:
@@ -91,6 +98,8 @@ class QNetConfig:
             raise ValueError(f'sharing must be one of {SHARING_MODES}')
         if self.first_stride not in (1, 2):
             raise ValueError(f'first_stride must be 1 or 2, not {self.first_stride}')
+        if self.hypotheses < 1:
+            raise ValueError(f'hypotheses must be at least 1, not {self.hypotheses}')
         if self.crop_size % 2 ** len(self.channels):
             raise ValueError(f'crop_size {self.crop_size} is not divisible by '
                              f'2^{len(self.channels)}')
@@ -142,9 +151,11 @@ class QNet(nn.Module):
         count = len(config.objects)
         trunks = 1 if config.sharing == 'shared' else count
         self.trunks = nn.ModuleList([_trunk(config) for _ in range(trunks)])
-        # One 4-output head per object (rows 4k..4k+3); with per_object trunks, head k only
-        # ever sees trunk k's features, so each object has a whole network of its own.
-        self.head = nn.Linear(config.fc_size, 4 * count)
+        # One head per object (rows w k .. w k + w - 1): a quaternion, or H quaternions then
+        # H scores. With per_object trunks, head k only ever sees trunk k's features, so each
+        # object has a whole network of its own.
+        self.head_width = 4 if config.hypotheses == 1 else 5 * config.hypotheses
+        self.head = nn.Linear(config.fc_size, self.head_width * count)
         self.normalize = QNormalization() if config.q_normalization else nn.Identity()
         self._init_weights()
 
@@ -158,6 +169,27 @@ class QNet(nn.Module):
 
     def forward(self, crops, object_index):
         """Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,)."""
+        if self.config.hypotheses == 1:
+            return self.normalize(self._heads(crops, object_index))
+        quats, scores = self.hypotheses(crops, object_index)
+        best = scores.argmax(dim=1).view(-1, 1, 1).expand(-1, 1, 4)
+        return quats.gather(1, best).squeeze(1)
+
+    def hypotheses(self, crops, object_index):
+        """
+        All hypotheses: quaternions (N, H, 4) wxyz and their scores (N, H) (logits).
+
+        With one hypothesis the score is 0.
+        """
+        raw = self._heads(crops, object_index)
+        count = self.config.hypotheses
+        if count == 1:
+            return self.normalize(raw).unsqueeze(1), raw.new_zeros((len(raw), 1))
+        quats = self.normalize(raw[:, :4 * count].reshape(-1, count, 4))
+        return quats, raw[:, 4 * count:]
+
+    def _heads(self, crops, object_index):
+        """Each crop's own head output (N, head_width), before q-normalization."""
         x = crops.sub(_MEAN).div_(_STD)
         if len(self.trunks) == 1:
             features = self.trunks[0](x)
@@ -166,7 +198,9 @@ class QNet(nn.Module):
             for k in torch.unique(object_index).tolist():
                 chosen = object_index == k
                 features[chosen] = self.trunks[k](x[chosen])
-        # Each crop's own head: columns 4k..4k+3 of all heads' outputs. Offsets from a
-        # constant keep an exported graph free of shape computations (and the batch free).
-        columns = object_index.unsqueeze(1) * 4 + torch.arange(4, device=features.device)
-        return self.normalize(self.head(features).gather(1, columns))
+        # Columns w k .. w k + w - 1 of all heads' outputs. Offsets from a constant keep an
+        # exported graph free of shape computations (and the batch free).
+        width = self.head_width
+        columns = object_index.unsqueeze(1) * width + torch.arange(width,
+                                                                   device=features.device)
+        return self.head(features).gather(1, columns)

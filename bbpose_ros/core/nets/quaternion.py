@@ -13,7 +13,10 @@
 # limitations under the License.
 
 """
-The paper's q-normalization layer and Dot Product Loss, with the symmetric-object extension.
+The paper's q-normalization layer and Dot Product Loss, and extensions of the loss.
+
+Extensions: the best of a symmetric object's equivalent ground truths, and winner-takes-all
+over several hypotheses.
 
 Quaternions here are (w, x, y, z) = (q0, q1, q2, q3), the paper's order, in (B, 4) tensors.
 Ground truths live on the q0 >= 0 hemisphere (the paper's q+ rule).
@@ -21,6 +24,7 @@ Ground truths live on the q0 >= 0 hemisphere (the paper's q+ rule).
 
 import torch
 from torch import nn
+import torch.nn.functional as F
 
 
 class QNormalization(nn.Module):
@@ -61,3 +65,35 @@ def symmetric_dot_product_loss(q_pred, q_candidates, valid):
     """
     losses = 0.5 * (1.0 - torch.einsum('bd,bkd->bk', q_pred, q_candidates))
     return losses.masked_fill(~valid, float('inf')).min(dim=1).values
+
+
+def multi_hypothesis_loss(q_hypotheses, scores, q_candidates, valid, relax=0.05,
+                          score_weight=0.1):
+    """
+    Relaxed winner-takes-all loss of several hypotheses (Rupprecht et al., ICCV 2017).
+
+    The best hypothesis (lowest ``symmetric_dot_product_loss``) gets weight 1 - ``relax``,
+    the others share ``relax`` (so that none is left untrained); the scores learn by
+    cross-entropy which hypothesis is the best, weighted by ``score_weight``.
+
+    Args:
+        q_hypotheses: (B, H, 4) predicted quaternions (wxyz), H >= 2.
+        scores: (B, H) logits of the hypotheses.
+        q_candidates, valid: as in ``symmetric_dot_product_loss``.
+        relax: weight shared by the H - 1 other hypotheses.
+        score_weight: weight of the scores' cross-entropy.
+
+    Returns:
+        (B,) per-sample loss.
+
+    """
+    batch, count = q_hypotheses.shape[:2]
+    losses = symmetric_dot_product_loss(q_hypotheses.reshape(-1, 4),
+                                        q_candidates.repeat_interleave(count, dim=0),
+                                        valid.repeat_interleave(count, dim=0))
+    losses = losses.view(batch, count)
+    best = losses.detach().argmin(dim=1)
+    weights = torch.full_like(losses, relax / (count - 1))
+    weights.scatter_(1, best.unsqueeze(1), 1.0 - relax)
+    return (weights * losses).sum(dim=1) + \
+        score_weight * F.cross_entropy(scores, best, reduction='none')

@@ -37,7 +37,7 @@ import torch
 
 from bbpose_ros.core.nets.crops import box_centre_rays
 from bbpose_ros.core.nets.images import images_to_input
-from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
+from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
 from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.training.augment import photometric
@@ -140,10 +140,17 @@ def symmetry_rotations(models):
     return rotations, valid
 
 
+def qnet_loss(network, images, index, candidates, valid):
+    """Per-crop training loss (B,): the symmetric Dot Product Loss, or winner-takes-all."""
+    if network.config.hypotheses == 1:
+        return symmetric_dot_product_loss(network(images, index), candidates, valid)
+    return multi_hypothesis_loss(*network.hypotheses(images, index), candidates, valid)
+
+
 def qnet_step(network, optimizer, batches):
     """One optimisation step; returns the batch's mean loss."""
     images, index, candidates, valid = batches.train_batch()
-    loss = symmetric_dot_product_loss(network(images, index), candidates, valid).mean()
+    loss = qnet_loss(network, images, index, candidates, valid).mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
