@@ -85,6 +85,6 @@ weights: setup photos
 		--seed 3 --crops 40000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
 		--extra-cache $(CACHE)/crops_photos $(CACHE)/crops_upright \
-		--run-dir $(CACHE)/runs/qnet_upright --rotation-target allocentric --sign-invariant \
-		--channels 8,16,24,32 --first-stride 2 --max-inplane-deg 45 --steps 40000 \
-		--every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt
+		--run-dir $(CACHE)/runs/qnet_hypotheses8 --rotation-target allocentric --sign-invariant \
+		--channels 8,16,24,32 --first-stride 2 --max-inplane-deg 45 --hypotheses 8 \
+		--steps 40000 --every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt
