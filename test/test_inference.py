@@ -56,9 +56,10 @@ def test_folded_copy_computes_the_same_function():
 
 
 @pytest.mark.parametrize('batch', [1, 3, 8])
-@pytest.mark.parametrize('first_stride', [1, 2])
-def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride):
-    net = _trained_looking(QNet(QNetConfig(OBJECTS, first_stride=first_stride)))
+@pytest.mark.parametrize('first_stride, hypotheses', [(1, 1), (2, 1), (2, 8)])
+def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride, hypotheses):
+    net = _trained_looking(QNet(QNetConfig(OBJECTS, first_stride=first_stride,
+                                           hypotheses=hypotheses)))
     example = (_images(2, 48, 48), np.array([0, 1]))     # traced with batch 2
     onnx = make_runner(net, example, 'onnxruntime', threads=1, dynamic_batch=True)
     crops, index = _images(batch, 48, 48), RNG.integers(0, len(OBJECTS), batch)

@@ -138,6 +138,8 @@ def test_winner_takes_all_loss():
         cross_entropy = torch.nn.functional.cross_entropy(scores, torch.tensor([1]))
         torch.testing.assert_close(loss, 0.05 * others.sum() + cross_entropy.view(1))
         assert (float(cross_entropy) < 1e-3) == right
+    with pytest.raises(ValueError, match='at least 2 hypotheses'):
+        multi_hypothesis_loss(truth, torch.zeros(1, 1), truth, valid)
 
 
 def test_allocentric_output_is_turned_egocentric():

@@ -37,7 +37,7 @@ Options (``QNetConfig``), the paper's version being the default where it has one
   the slowest kernel at inference (its 3 input channels use the vector units poorly);
 * ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison);
 * ``hypotheses`` 1 (paper) or H > 1: each head gives H quaternions and H scores, trained
-  winner-takes-all (``qnet_training.multi_hypothesis_loss``) and the best-scored one is the
+  winner-takes-all (``quaternion.multi_hypothesis_loss``) and the best-scored one is the
   output. One regressed quaternion lands between the views a crop cannot tell apart (a
   front and a back that look alike at 48x48); H of them can each settle on one
   (Rupprecht et al., ICCV 2017; Manhardt et al., ICCV 2019).
@@ -168,7 +168,11 @@ class QNet(nn.Module):
                     nn.init.zeros_(module.bias)
 
     def forward(self, crops, object_index):
-        """Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,)."""
+        """
+        Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,).
+
+        With several hypotheses, the best-scored one of each crop.
+        """
         raw = self._heads(crops, object_index)
         count = self.config.hypotheses
         if count == 1:

@@ -18,7 +18,8 @@ The paper's q-normalization layer and Dot Product Loss, and extensions of the lo
 Extensions: the best of a symmetric object's equivalent ground truths, and winner-takes-all
 over several hypotheses.
 
-Quaternions here are (w, x, y, z) = (q0, q1, q2, q3), the paper's order, in (B, 4) tensors.
+Quaternions here are (w, x, y, z) = (q0, q1, q2, q3), the paper's order, along the last
+axis of (B, 4) or (B, H, 4) tensors.
 Ground truths live on the q0 >= 0 hemisphere (the paper's q+ rule).
 """
 
@@ -88,6 +89,8 @@ def multi_hypothesis_loss(q_hypotheses, scores, q_candidates, valid, relax=0.05,
 
     """
     batch, count = q_hypotheses.shape[:2]
+    if count < 2:
+        raise ValueError(f'winner-takes-all needs at least 2 hypotheses, got {count}')
     losses = symmetric_dot_product_loss(q_hypotheses.reshape(-1, 4),
                                         q_candidates.repeat_interleave(count, dim=0),
                                         valid.repeat_interleave(count, dim=0))
