@@ -77,6 +77,9 @@ weights: setup photos
 	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
 		--run-dir $(CACHE)/runs/detector --steps 55000 --every 1000 \
 		--export bbpose_ros/weights/detector.pt
+	$(BIN)/bbpose train verifier --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
+		--detector-weights $(CACHE)/runs/detector/detector.pt --run-dir $(CACHE)/runs/verifier \
+		--channels 16,32,64,64 --steps 8000 --every 500 --real-val --export bbpose_ros/weights/detector.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops --seed 1 \
 		--crops 80000
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \

@@ -12,14 +12,16 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The compact detector: shapes, decoding, box mapping to the frame, detection metrics."""
+"""The compact detector: shapes, decoding, box mapping, second stage, detection metrics."""
 
 import numpy as np
+import pytest
 import torch
 
 from bbpose_ros.core.detection_eval import average_precision
-from bbpose_ros.core.estimators import BoxDetector
+from bbpose_ros.core.estimators import best_per_class, BoxDetector
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
+from bbpose_ros.core.nets.verifier import CandidateVerifier
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 
@@ -53,10 +55,11 @@ def test_decode_finds_peaks_and_boxes():
 
 
 class _FixedNet(torch.nn.Module):
-    def __init__(self, heat, sides):
+    def __init__(self, heat, sides, verifier=None, candidates=4):
         super().__init__()
-        self.config = DetectorConfig(OBJECTS)
+        self.config = DetectorConfig(OBJECTS, candidates=candidates)
         self.heat, self.sides = heat, sides
+        self.verifier = verifier
 
     def forward(self, images):
         return self.heat[None], self.sides[None]
@@ -70,6 +73,58 @@ def test_box_detector_maps_boxes_to_the_full_frame():
     assert [d.object_name for d in detections] == ['ape']      # 'can' is not wanted
     box_in = np.array([163.5 - 16, 83.5 - 8, 163.5 + 24, 83.5 + 8])
     np.testing.assert_allclose(detections[0].box_uv, (box_in + 0.5) * 2 - 0.5)
+
+
+def test_cascade_forward_shapes():
+    config = DetectorConfig(OBJECTS, verifier_channels=(4, 8, 8, 8), verifier_crop_size=32)
+    net = CenterBoxNet(config).eval()
+    with torch.inference_mode():
+        logits, corrections = net.verifier.outputs(torch.rand(5, 3, 32, 32))
+        probability, _ = net.verifier(torch.rand(5, 3, 32, 32), torch.arange(5))
+    assert logits.shape == (5, 9) and corrections.shape == (5, 4) and probability.shape == (5,)
+    assert torch.all((probability > 0) & (probability < 1))
+    assert CenterBoxNet(DetectorConfig(OBJECTS)).verifier is None
+
+
+class _BrightnessVerifier(torch.nn.Module):
+    """Second stage that trusts a candidate as much as its crop is bright, widens its box."""
+
+    def forward(self, crops, class_index):
+        corrections = torch.tensor([-0.1, 0.0, 0.1, 0.2]).expand(len(crops), 4)
+        return crops.mean(dim=(1, 2, 3)), corrections
+
+
+def test_second_stage_rescoring_picks_the_verified_candidate():
+    # Two 'ape' peaks: the heatmap prefers the first, the second stage the second (its crop
+    # is white) and moves its sides by the corrections times the crop side (1.2 x 16 px);
+    # a 'cat' peak on a black crop is dropped by the second stage's score.
+    heat, sides = _crafted([(0, 10, 20, 0.9, (8.0, 8.0, 8.0, 8.0)),
+                            (0, 20, 30, 0.5, (8.0, 8.0, 8.0, 8.0)),
+                            (2, 5, 5, 0.9, (8.0, 8.0, 8.0, 8.0))])
+    image = np.zeros((480, 640, 3), dtype=np.uint8)
+    centre = np.array([30 * 8 + 3.5, 20 * 8 + 3.5]) * 2       # second peak, full frame
+    image[int(centre[1]) - 40:int(centre[1]) + 40, int(centre[0]) - 40:int(centre[0]) + 40] = 255
+    net = _FixedNet(heat, sides, _BrightnessVerifier())
+    detections = BoxDetector(net, ['ape', 'cat'], 0.3, 1, backend='torch')(image)
+    assert [d.object_name for d in detections] == ['ape']
+    assert detections[0].score > 0.9
+    box_in = np.array([243.5 - 8, 163.5 - 8, 243.5 + 8, 163.5 + 8])
+    box_in += np.array([-0.1, 0.0, 0.1, 0.2]) * 1.2 * 16
+    np.testing.assert_allclose(detections[0].box_uv, (box_in + 0.5) * 2 - 0.5, atol=1e-4)
+
+
+def test_best_per_class_keeps_the_top_scores_above_the_threshold():
+    classes = np.array([0, 0, 1, 2, 0])
+    scores = np.array([0.5, 0.9, 0.2, 0.4, 0.8])
+    boxes = np.arange(20.0).reshape(5, 4)
+    kept = best_per_class(classes, scores, boxes, 0.3, 2)
+    assert kept[0].tolist() == [0, 0, 2] and kept[1].tolist() == [0.9, 0.8, 0.4]
+    np.testing.assert_array_equal(kept[2], boxes[[1, 4, 3]])
+
+
+def test_verifier_refuses_a_crop_size_off_the_pooling_grid():
+    with pytest.raises(ValueError, match='multiple of 8'):
+        CandidateVerifier((4, 4, 4, 4), 8, 30)
 
 
 def test_average_precision():

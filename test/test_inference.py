@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.estimators import BoxDetector, QNetRotationEstimator
 from bbpose_ros.core.inference import inference_network, make_runner
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
@@ -80,6 +80,19 @@ def test_onnxruntime_detector_matches_torch():
     assert len(outputs) == len(expected) == 2
     for got, want in zip(outputs, expected):
         torch.testing.assert_close(got, want, atol=1e-4, rtol=1e-4)
+
+
+def test_second_stage_detections_agree_between_backends():
+    net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS,
+                                                       verifier_channels=(8, 8, 16, 16))))
+    image = _images(1, 480, 640)[0]
+    found = [BoxDetector(net, OBJECTS, 0.0, 2, backend, threads=1)(image)
+             for backend in ('torch', 'onnxruntime')]
+    assert len(found[0]) == len(found[1]) == 2 * len(OBJECTS)
+    for a, b in zip(*found):
+        assert a.object_name == b.object_name
+        assert abs(a.score - b.score) < 1e-5
+        np.testing.assert_allclose(a.box_uv, b.box_uv, atol=1e-3)
 
 
 def test_backend_choice_is_checked():

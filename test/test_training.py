@@ -21,7 +21,7 @@ import torch
 from bbpose_ros.cli.main import main
 from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.nets.crops import square_boxes
-from bbpose_ros.core.nets.detector import decode, DetectorConfig
+from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.rotations import quat_wxyz_to_matrix
@@ -31,6 +31,9 @@ from bbpose_ros.core.training.detector_training import DetectorBatches, Detector
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
                                                     QNetTrainSettings)
+from bbpose_ros.core.training.verifier_training import (candidate_targets, CandidateCrops,
+                                                        verifier_step, verifier_validation,
+                                                        VerifierBatches, VerifierTrainSettings)
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
@@ -113,6 +116,51 @@ def test_detector_targets_decode_to_the_boxes():
     assert float(weight.sum()) > 0
 
 
+def _mined(scenes=4):
+    cache = _fake_cache(np.random.default_rng(5), scenes=scenes)
+    torch.manual_seed(0)
+    network = CenterBoxNet(DetectorConfig(OBJECTS, verifier_channels=(8, 8, 16, 16)))
+    settings = VerifierTrainSettings(batch=32, mined_per_class=2, val_fraction=0.25)
+    return cache, network, settings, CandidateCrops(network, cache, settings, 0, False)
+
+
+def test_candidate_crops_are_labelled_by_the_true_boxes():
+    cache, network, settings, mined = _mined()
+    assert mined.crops.shape[1:] == (32, 32, 3) and len(mined.labels) == len(mined.crops)
+    for scene in range(len(cache.images)):
+        ids = np.flatnonzero(cache.scene == scene)
+        labels = mined.labels[mined.scene == scene]
+        # Each scene's jittered true boxes come last, labelled with their class.
+        assert labels[-len(ids):].tolist() == (cache.object[ids] + 1).tolist()
+        # An untrained heatmap (every cell at its 0.05 prior) gives 2 candidates a class.
+        assert len(labels) == 2 * len(OBJECTS) + len(ids)
+
+
+def test_candidate_targets_lead_to_the_true_box():
+    truth = np.array([[100.0, 50.0, 140.0, 110.0]])
+    boxes = np.array([[104.0, 50.0, 140.0, 106.0],      # IoU 0.84: positive
+                      [120.0, 80.0, 160.0, 140.0],      # IoU 0.14: background
+                      [100.0, 70.0, 140.0, 130.0]])     # IoU 0.50 >= 0.3: positive
+    squares = square_boxes(boxes, 1.2)
+    labels, corrections = candidate_targets(boxes, squares, truth, np.array([4]), 0.3)
+    assert labels.tolist() == [5, 0, 5]
+    side = squares[:, 2:3] - squares[:, 0:1]
+    np.testing.assert_allclose((boxes + corrections * side)[[0, 2]], truth[[0, 0]], atol=1e-4)
+    assert not corrections[1].any()
+
+
+def test_tiny_verifier_run_lowers_the_loss():
+    _, network, settings, mined = _mined()
+    batches = VerifierBatches(mined, settings, 0)
+    settings.augment = 0.0
+    optimizer = torch.optim.Adam(network.verifier.parameters(), 3e-3)
+    network.verifier.train()
+    losses = [verifier_step(network.verifier, optimizer, batches) for _ in range(40)]
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+    figures = verifier_validation(network.verifier, batches)
+    assert 0 <= figures['val_accuracy'] <= 1 and np.isfinite(figures['val_loss'])
+
+
 def test_qnet_batches_are_on_the_hemisphere(lmo_models):
     cache = _fake_cache(np.random.default_rng(4), scenes=4)
     config = QNetConfig(OBJECTS, rotation_target='allocentric')
@@ -177,4 +225,13 @@ def test_train_cli_refuses_zero_hypotheses(tmp_path, lmo_root, capsys):
                  '--run-dir', str(tmp_path / 'run'), '--steps', '1', '--hypotheses', '0'])
     assert code == 2
     assert '--hypotheses must be at least 1' in capsys.readouterr().err
+    assert not (tmp_path / 'run').exists()
+
+
+def test_train_verifier_cli_refuses_zero_candidates(tmp_path, lmo_root, capsys):
+    code = main(['train', 'verifier', '--dataset', str(lmo_root), '--cache', str(tmp_path),
+                 '--run-dir', str(tmp_path / 'run'), '--detector-weights',
+                 str(tmp_path / 'detector.pt'), '--candidates', '0'])
+    assert code == 2
+    assert '--candidates must be at least 1' in capsys.readouterr().err
     assert not (tmp_path / 'run').exists()

@@ -95,6 +95,29 @@ def test_detector_round_trip(tmp_path):
     assert net.metadata['input_size'] == [320, 240]
 
 
+def test_detector_with_second_stage_round_trip(tmp_path):
+    path = tmp_path / 'detector.pt'
+    config = DetectorConfig(OBJECTS, verifier_channels=(4, 8, 8, 8), candidates=3)
+    net = CenterBoxNet(config).eval()
+    save_weights(path, net, 'detector', TRAINING)
+    loaded = load_network(path, 'detector', OBJECTS)
+    assert loaded.config == config
+    crops = torch.rand(2, 3, 32, 32)
+    with torch.inference_mode():
+        torch.testing.assert_close(loaded.verifier.outputs(crops), net.verifier.outputs(crops))
+
+
+def test_detector_file_without_second_stage_fields_loads_as_one_stage(tmp_path):
+    path = tmp_path / 'detector.pt'
+    save_weights(path, CenterBoxNet(DetectorConfig(OBJECTS)), 'detector', TRAINING)
+    payload = torch.load(path, weights_only=True)
+    for key in ('verifier_channels', 'verifier_crop_size', 'verifier_context', 'candidates',
+                'candidate_threshold'):
+        del payload['metadata']['architecture'][key]     # as files written before them
+    torch.save(payload, path)
+    assert load_network(path, 'detector', OBJECTS).verifier is None
+
+
 def test_shipped_weights_load():
     detector = load_network(DEFAULT_DETECTOR_WEIGHTS, 'detector', OBJECTS)
     qnet = load_network(DEFAULT_QNET_WEIGHTS, 'qnet', OBJECTS)

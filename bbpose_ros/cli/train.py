@@ -22,6 +22,8 @@
 * ``bbpose train detector`` / ``bbpose train qnet``: train from the cache within a step and/or
   time budget; ``--run-dir`` holds checkpoint.pt (resumed), log.csv, train.log, loss.png and
   the weight file; ``--export`` copies the weight file (e.g. to bbpose_ros/weights/).
+* ``bbpose train verifier``: the detector's second stage, on the candidates a trained
+  detector (``--detector-weights``) finds in a scene cache; writes both stages in one file.
 * ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
   initialisation and samples, losses in one plot.
 """
@@ -37,6 +39,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.qnet import QNetConfig
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
+VERIFIER_CHANNELS = (16, 32, 64, 64)
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 
@@ -76,6 +79,11 @@ def add_parser(subparsers):
         stage_parser.set_defaults(func=func)
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
+    verifier = sub.add_parser('verifier', help="train the detector's second stage")
+    _common(verifier)
+    _budget(verifier, steps=8000)
+    _verifier_options(verifier)
+    verifier.set_defaults(func=run_verifier)
     fig3 = sub.add_parser('fig3', help="the paper's Fig. 3: with vs without q-normalization")
     _common(fig3)
     _budget(fig3, steps=3000)
@@ -151,6 +159,23 @@ def _qnet_options(parser):
                              'boxes (measured only, never trained on)')
 
 
+def _verifier_options(parser):
+    parser.add_argument('--detector-weights', type=Path, required=True,
+                        help='the trained detector whose candidates are re-scored (its '
+                             'first stage is kept, a second stage in it is replaced)')
+    parser.add_argument('--channels', type=_int_tuple, default=VERIFIER_CHANNELS,
+                        help='widths of the four conv stages (default %(default)s)')
+    parser.add_argument('--crop-size', type=int, default=32,
+                        help='crop side, a multiple of 8 (default %(default)s)')
+    parser.add_argument('--context', type=float, default=1.2,
+                        help='crop side / longest box side (default %(default)s)')
+    parser.add_argument('--candidates', type=int, default=4,
+                        help='peaks per class re-scored at run time (default %(default)s)')
+    parser.add_argument('--real-val', action='store_true',
+                        help="also measure the detector's recall on the dataset's real frames "
+                             '(measured only, never trained on)')
+
+
 def _settings(settings, args):
     for name in ('batch', 'lr'):
         if getattr(args, name) is not None:
@@ -212,6 +237,36 @@ def run_detector(args):
     train_detector(cache, config, _settings(DetectorTrainSettings(), args), args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
                    args.every)
+    return 0
+
+
+def run_verifier(args):
+    """Train the detector's second stage."""
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.runs import train_verifier, with_verifier
+    from bbpose_ros.core.training.verifier_training import VerifierTrainSettings
+    from bbpose_ros.core.weights import load_network
+    if args.candidates < 1:
+        raise InputError(f'--candidates must be at least 1, got {args.candidates}')
+    if args.crop_size < 8 or args.crop_size % 8:
+        raise InputError(f'--crop-size must be a positive multiple of 8, got {args.crop_size}')
+    if len(args.channels) != 4:
+        raise InputError(f'--channels needs 4 widths, got {len(args.channels)}')
+    detector = load_network(args.detector_weights, 'detector')
+    cache = TrainingCache(args.cache, args.max_shards)
+    if tuple(cache.input_size) != tuple(detector.config.input_size):
+        raise InputError(f'training cache {args.cache}: input size {cache.input_size} is not '
+                         f"the detector's {detector.config.input_size}")
+    cascade = with_verifier(detector, args.channels, args.crop_size, args.context,
+                            args.candidates)
+    real = None
+    if args.real_val:
+        from bbpose_ros.core.bop import BopDataset
+        from bbpose_ros.core.training.real_validation import RealDetections
+        real = RealDetections(BopDataset(args.dataset).frames(), cascade.config.objects)
+    train_verifier(cache, cascade, _settings(VerifierTrainSettings(), args), args.run_dir,
+                   args.steps, _seconds(args), args.seed, args.threads, args.export,
+                   args.every, real_frames=real)
     return 0
 
 

@@ -47,10 +47,14 @@ class BoxDetector:
     """
     Detector callable: ``detect(image_rgb (H, W, 3) uint8) -> list[Detection]``.
 
+    With a second stage (``network.verifier``), the ``candidates`` highest heatmap peaks of
+    each wanted class are re-scored on crops of the network input: the score of a detection
+    is the second stage's probability of its class, its box the second stage's correction.
+
     Args:
         network: a CenterBoxNet (a copy is prepared for inference by ``make_runner``).
         names: object names to report (a subset of the network's classes).
-        score_threshold: lowest peak probability reported.
+        score_threshold: lowest detection score reported.
         max_instances: most detections per object name.
         backend, device, threads: see ``inference.make_runner``.
 
@@ -62,6 +66,10 @@ class BoxDetector:
         in_w, in_h = self.config.input_size
         self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
         self.network = make_runner(network, (self.blank,), backend, device, threads)
+        self.verifier = None
+        if network.verifier is not None:
+            self.verifier = make_runner(network.verifier, self._blank_crops(1), backend,
+                                        device, threads, dynamic_batch=True)
         self.wanted = np.array([name in set(names) for name in self.config.objects])
         self.score_threshold = score_threshold
         self.max_instances = max_instances
@@ -72,17 +80,70 @@ class BoxDetector:
         in_w, in_h = self.config.input_size
         small = cv2.resize(image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
         heat, box = self.network(small[None])
-        classes, scores, boxes = decode(heat[0].cpu(), box[0].cpu(), self.config.stride,
-                                        self.score_threshold, self.max_instances)
+        if self.verifier is None:
+            classes, scores, boxes = (x.numpy() for x in decode(
+                heat[0].cpu(), box[0].cpu(), self.config.stride, self.score_threshold,
+                self.max_instances))
+        else:
+            classes, scores, boxes = self._second_stage(small, heat[0].cpu(), box[0].cpu())
         scale = np.array([width / in_w, height / in_h] * 2)
-        boxes = (boxes.numpy().astype(float) + 0.5) * scale - 0.5
+        boxes = (boxes.astype(float) + 0.5) * scale - 0.5
         return [Detection(self.config.objects[c], float(s), b)
                 for c, s, b in zip(classes.tolist(), scores.tolist(), boxes)
                 if self.wanted[c]]
 
+    def _second_stage(self, small, heat, box):
+        """Candidates of the wanted classes re-scored and re-boxed by the verifier."""
+        classes, _, boxes = (x.numpy() for x in decode(
+            heat, box, self.config.stride, self.config.candidate_threshold,
+            self.config.candidates))
+        keep = self.wanted[classes]
+        classes, boxes = classes[keep], boxes[keep]
+        if not len(classes):
+            return classes, np.zeros(0, np.float32), boxes
+        squares = square_boxes(boxes, self.config.verifier_context)
+        crops = extract_crops(small, squares, self.config.verifier_crop_size)
+        scores, corrections = self.verifier(crops, classes.astype(np.int64))
+        boxes = boxes + corrections.cpu().numpy() * (squares[:, 2:3] - squares[:, 0:1])
+        return best_per_class(classes, scores.cpu().numpy(), boxes, self.score_threshold,
+                              self.max_instances)
+
+    def _blank_crops(self, count):
+        size = self.config.verifier_crop_size
+        return (np.full((count, size, size, 3), FILL_VALUE, dtype=np.uint8),
+                np.zeros(count, dtype=np.int64))
+
     def warm_up(self):
-        """Run the network once on a blank input (see QNetRotationEstimator.warm_up)."""
+        """Run the networks once on blank inputs, the verifier at every batch size."""
         self.network(self.blank)
+        if self.verifier is not None:
+            for count in range(1, self.config.candidates * int(self.wanted.sum()) + 1):
+                self.verifier(*self._blank_crops(count))
+
+
+def best_per_class(classes, scores, boxes, score_threshold, max_per_class):
+    """
+    Keep the ``max_per_class`` best detections of each class scored >= ``score_threshold``.
+
+    Args:
+        classes: (K,) class indices.
+        scores: (K,) scores.
+        boxes: (K, 4) boxes.
+
+    Returns:
+        (classes, scores, boxes) of the kept detections, highest score first.
+
+    """
+    order = np.argsort(-scores, kind='stable')
+    order = order[scores[order] >= score_threshold]
+    taken = {}
+    kept = []
+    for k in order.tolist():
+        count = taken.get(classes[k], 0)
+        if count < max_per_class:
+            taken[classes[k]] = count + 1
+            kept.append(k)
+    return classes[kept], scores[kept], boxes[kept]
 
 
 class QNetRotationEstimator:

@@ -30,6 +30,9 @@ Design, and why:
 * About 0.2 M parameters and ~0.15 GMAC: ~10 ms per frame on 2 CPU cores with
   ``channels_last`` and ``torch.inference_mode`` (measured by ``bbpose train`` tooling and
   test/test_detector.py within the 15 ms budget).
+* An optional second stage, as in MTCNN's cascade (``core.nets.verifier``): the
+  ``candidates`` highest peaks of each class are re-scored by a small classifier on a crop
+  of their box, which learns the false peaks the heatmap ranks high.
 """
 
 from dataclasses import asdict, dataclass
@@ -37,6 +40,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 import torch.nn.functional as F
+
+from bbpose_ros.core.nets.verifier import CandidateVerifier
 
 HEATMAP_PRIOR = 0.05   # initial peak probability (CenterNet's focal-loss bias init)
 
@@ -54,6 +59,12 @@ class DetectorConfig:
         input_size: (width, height) the frame is resized to before the network.
         channels: widths of the stride 2, 4, 8 and 16 stages.
         stride: output grid stride in input pixels (fixed by the architecture: 8).
+        verifier_channels: widths of the second stage's four conv stages; () (older files
+            too): no second stage, the heatmap peaks are the detections.
+        verifier_crop_size: side of the second stage's crops, in pixels.
+        verifier_context: crop side / longest side of the candidate's box.
+        candidates: peaks per class the second stage re-scores.
+        candidate_threshold: lowest heatmap peak probability passed to the second stage.
 
     """
 
@@ -61,11 +72,16 @@ class DetectorConfig:
     input_size: tuple = (320, 240)
     channels: tuple = (16, 32, 48, 96)
     stride: int = 8
+    verifier_channels: tuple = ()
+    verifier_crop_size: int = 32
+    verifier_context: float = 1.2
+    candidates: int = 4
+    candidate_threshold: float = 0.02
 
     def to_dict(self):
         """JSON-ready dict (tuples become lists)."""
         data = asdict(self)
-        for key in ('objects', 'input_size', 'channels'):
+        for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
             data[key] = list(data[key])
         return data
 
@@ -73,8 +89,9 @@ class DetectorConfig:
     def from_dict(cls, data):
         """Inverse of ``to_dict``."""
         data = dict(data)
-        for key in ('objects', 'input_size', 'channels'):
-            data[key] = tuple(data[key])
+        for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
+            if key in data:
+                data[key] = tuple(data[key])
         return cls(**data)
 
 
@@ -93,7 +110,8 @@ class CenterBoxNet(nn.Module):
     (heatmap logits (N, C, H/8, W/8), log box sides (N, 4, H/8, W/8)).
 
     Box sides are log(distance / stride) from each cell centre to the left, top, right and
-    bottom edges of the amodal box, in input pixels.
+    bottom edges of the amodal box, in input pixels. ``verifier`` is the second stage (a
+    CandidateVerifier, run separately on crops) or None.
     """
 
     def __init__(self, config):
@@ -112,6 +130,10 @@ class CenterBoxNet(nn.Module):
         prior = torch.tensor(HEATMAP_PRIOR)
         nn.init.constant_(self.heatmap.bias, float(torch.log(prior / (1 - prior))))
         nn.init.zeros_(self.box.bias)
+        self.verifier = None
+        if config.verifier_channels:
+            self.verifier = CandidateVerifier(config.verifier_channels, len(config.objects),
+                                              config.verifier_crop_size)
 
     def forward(self, images):
         """Heatmap logits and log box sides on the stride-8 grid."""

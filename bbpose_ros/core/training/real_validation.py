@@ -13,16 +13,19 @@
 # limitations under the License.
 
 """
-Q-Net on real frames with ground-truth boxes: the sim-to-real figure, watched while training.
+The learned stages on real frames: the sim-to-real figures, watched while training.
 
-The crops are cut once, exactly as ``QNetRotationEstimator`` cuts them; the error is the
-rotation error (degrees) to the closest symmetric equivalent of the ground truth, as in
-``metrics.cm_deg_errors``. These frames only measure: nothing here feeds the optimiser.
+``RealCrops``: Q-Net with ground-truth boxes; the crops are cut exactly as
+``QNetRotationEstimator`` cuts them; the error is the rotation error (degrees) to the closest
+symmetric equivalent of the ground truth, as in ``metrics.cm_deg_errors``.
+``RealDetections``: the detector's recall and AP, as ``bbpose eval`` scores them. These
+frames only measure: nothing here feeds the optimiser.
 """
 
 import numpy as np
 
-from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.detection_eval import score_detections
+from bbpose_ros.core.estimators import BoxDetector, QNetRotationEstimator
 from bbpose_ros.core.pipeline import Detection
 
 
@@ -70,3 +73,27 @@ class RealCrops:
         return {'real_median_deg': float(np.median(errors)),
                 'real_acc15': float(np.mean(errors < 15)),
                 'real_acc30': float(np.mean(errors < 30))}
+
+
+class RealDetections:
+    """
+    Real frames for the detector, run as ``load_pipeline`` sets it up (score 0.3, one a name).
+
+    Args:
+        frames: BopFrame sequence.
+        objects: the names to detect and score.
+
+    """
+
+    def __init__(self, frames, objects):
+        self.frames = list(frames)
+        self.images = [frame.load_image() for frame in self.frames]
+        self.objects = list(objects)
+
+    def figures(self, network):
+        """Mean recall at IoU 0.5 (visible fraction >= 0.3) and AP50 of a CenterBoxNet."""
+        detector = BoxDetector(network, self.objects, backend='torch')
+        report = score_detections(self.frames, [detector(image) for image in self.images],
+                                  self.objects)
+        return {'real_recall50_visib30': report['mean']['recall_iou50_visib30'],
+                'real_ap50': report['mean']['ap50']}

@@ -17,10 +17,12 @@ Training runs of Q-Net and the detector: build, train, checkpoint, export weight
 
 Each run folder gets ``checkpoint.pt`` (resumable), ``log.csv``, ``train.log``, ``loss.png``
 and the exported weight file (``qnet.pt`` / ``detector.pt``, with metadata, see
-``core.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere too.
+``core.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere too. The
+detector's second stage trains in a run of its own and is exported with its first stage in
+one ``detector.pt``.
 """
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 import shutil
 import subprocess
@@ -34,6 +36,8 @@ from bbpose_ros.core.training.detector_training import (detector_step, detector_
                                                         DetectorBatches)
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import qnet_step, qnet_validation, QNetBatches
+from bbpose_ros.core.training.verifier_training import (CandidateCrops, verifier_step,
+                                                        verifier_validation, VerifierBatches)
 from bbpose_ros.core.weights import save_weights
 
 
@@ -55,10 +59,18 @@ def _prepare(run_dir, seed, threads):
     return log
 
 
-def _exporter(run_dir, network, kind, training, export, validation):
-    """Return a checkpoint hook that writes the weight file (and its copy)."""
+def _exporter(run_dir, network, kind, training, export, validation, base=None):
+    """
+    Return a checkpoint hook that writes the weight file (and its copy).
+
+    The file's training record is ``training`` with the step and latest ``validation``; with
+    a ``base`` record (the first stage's, for a second stage), ``base`` with that record as
+    its ``verifier`` entry.
+    """
     def export_weights(step):
         record = dict(training, steps=step, validation=validation)
+        if base is not None:
+            record = dict(base, verifier=record)
         path = Path(run_dir) / f'{kind}.pt'
         save_weights(path, network, kind, record)
         if export:
@@ -132,3 +144,58 @@ def train_detector(cache, config, settings, run_dir, steps, seconds=None, seed=0
                                                   export, validation),
              progress=progress)
     return network
+
+
+def with_verifier(detector, channels, crop_size, context, candidates):
+    """
+    Copy a trained CenterBoxNet and give it a new, untrained second stage.
+
+    The first stage's weights and metadata are kept; the second stage is configured by
+    ``channels``, ``crop_size``, ``context`` and ``candidates`` (see DetectorConfig).
+    """
+    config = replace(detector.config, verifier_channels=tuple(channels),
+                     verifier_crop_size=crop_size, verifier_context=context,
+                     candidates=candidates)
+    cascade = CenterBoxNet(config)
+    first = {k: v for k, v in detector.state_dict().items() if not k.startswith('verifier.')}
+    cascade.load_state_dict(first, strict=False)
+    cascade.metadata = detector.metadata
+    return cascade
+
+
+def train_verifier(cache, cascade, settings, run_dir, steps, seconds=None, seed=0,
+                   threads=None, export=None, every=500, progress=True, real_frames=None):
+    """
+    Train (or resume) the second stage of ``cascade`` (``with_verifier``) on a TrainingCache.
+
+    The first stage stays as it is. ``settings`` is a VerifierTrainSettings; budgets as in
+    ``loop.run_loop``; ``real_frames`` (a ``RealDetections``) adds the real recall to every
+    validation. The weight file, both stages, is ``run_dir/detector.pt`` (and ``export``).
+    """
+    log = _prepare(run_dir, seed, threads)
+    candidates = CandidateCrops(cascade, cache, settings, seed, progress)
+    log.text(f'{len(candidates.labels)} candidate crops from {candidates.scenes} scenes, '
+             f'{int((candidates.labels > 0).sum())} of them on an object')
+    verifier = cascade.verifier.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.AdamW(verifier.parameters(), settings.lr,
+                                  weight_decay=settings.weight_decay)
+    batches = VerifierBatches(candidates, settings, seed)
+    validation = {}
+    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
+                'settings': asdict(settings), 'total_steps': steps,
+                'cache_scenes': int(len(cache.images)),
+                'candidate_crops': int(len(candidates.labels))}
+
+    def figures():
+        result = verifier_validation(verifier, batches)
+        if real_frames is not None:
+            result.update(real_frames.figures(cascade))
+        return result
+
+    run_loop(run_dir, verifier, optimizer,
+             lambda step: verifier_step(verifier, optimizer, batches), steps, seconds,
+             settings.lr, validate=_validated(figures, validation), every=every,
+             on_checkpoint=_exporter(run_dir, cascade, 'detector', training, export,
+                                     validation, base=cascade.metadata['training']),
+             progress=progress)
+    return cascade
