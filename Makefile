@@ -79,7 +79,8 @@ weights: setup photos
 		--export bbpose_ros/weights/detector.pt
 	$(BIN)/bbpose train verifier --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
 		--detector-weights $(CACHE)/runs/detector/detector.pt --run-dir $(CACHE)/runs/verifier \
-		--channels 16,32,64,64 --steps 8000 --every 500 --real-val --export bbpose_ros/weights/detector.pt
+		--channels 12,24,48,48 --candidates 3 --steps 8000 --every 500 --real-val \
+		--export bbpose_ros/weights/detector.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops --seed 1 \
 		--crops 80000
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \

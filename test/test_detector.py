@@ -51,7 +51,7 @@ def test_decode_finds_peaks_and_boxes():
     assert abs(float(scores[0]) - 0.9) < 1e-5
     centre = np.array([20 * 8 + 3.5, 10 * 8 + 3.5])
     expected = [centre[0] - 16, centre[1] - 8, centre[0] + 24, centre[1] + 8]
-    np.testing.assert_allclose(boxes[0].numpy(), expected, atol=1e-4)
+    np.testing.assert_allclose(boxes[0], expected, atol=1e-4)
 
 
 class _FixedNet(torch.nn.Module):

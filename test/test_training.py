@@ -111,8 +111,8 @@ def test_detector_targets_decode_to_the_boxes():
     ids = batches.by_scene[0]
     truth = batches.input_boxes(ids)
     for j, box in zip(ids, truth):
-        k = list(classes.numpy()).index(batches.class_of[cache.object[j]])
-        np.testing.assert_allclose(boxes[k].numpy(), box, atol=1e-3)
+        k = list(classes).index(batches.class_of[cache.object[j]])
+        np.testing.assert_allclose(boxes[k], box, atol=1e-3)
     assert float(weight.sum()) > 0
 
 

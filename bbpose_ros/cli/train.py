@@ -39,7 +39,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.qnet import QNetConfig
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
-VERIFIER_CHANNELS = (16, 32, 64, 64)
+VERIFIER_CHANNELS = (12, 24, 48, 48)
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 
@@ -169,7 +169,7 @@ def _verifier_options(parser):
                         help='crop side, a multiple of 8 (default %(default)s)')
     parser.add_argument('--context', type=float, default=1.2,
                         help='crop side / longest box side (default %(default)s)')
-    parser.add_argument('--candidates', type=int, default=4,
+    parser.add_argument('--candidates', type=int, default=3,
                         help='peaks per class re-scored at run time (default %(default)s)')
     parser.add_argument('--real-val', action='store_true',
                         help="also measure the detector's recall on the dataset's real frames "

@@ -33,7 +33,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference import make_runner
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALUE
 from bbpose_ros.core.nets.crops import square_boxes
-from bbpose_ros.core.nets.detector import decode
+from bbpose_ros.core.nets.detector import peak_boxes, PeakOutputs
 from bbpose_ros.core.pipeline import Detection, PosePipeline
 from bbpose_ros.core.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
 from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
@@ -65,11 +65,16 @@ class BoxDetector:
         self.config = network.config
         in_w, in_h = self.config.input_size
         self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
-        self.network = make_runner(network, (self.blank,), backend, device, threads)
+        self.grid_width = in_w // self.config.stride
         self.verifier = None
         if network.verifier is not None:
             self.verifier = make_runner(network.verifier, self._blank_crops(1), backend,
                                         device, threads, dynamic_batch=True)
+        count = self.config.candidates if network.verifier is not None else max_instances
+        count = min(count, self.grid_width * (in_h // self.config.stride))
+        # The peak search runs inside the graph: ~1 ms less than torch calls on its outputs.
+        self.network = make_runner(PeakOutputs(network, count), (self.blank,), backend, device,
+                                   threads)
         self.wanted = np.array([name in set(names) for name in self.config.objects])
         self.score_threshold = score_threshold
         self.max_instances = max_instances
@@ -79,24 +84,22 @@ class BoxDetector:
         height, width = image_rgb.shape[:2]
         in_w, in_h = self.config.input_size
         small = cv2.resize(image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
-        heat, box = self.network(small[None])
+        outputs = [x[0].cpu().numpy() for x in self.network(small[None])]
         if self.verifier is None:
-            classes, scores, boxes = (x.numpy() for x in decode(
-                heat[0].cpu(), box[0].cpu(), self.config.stride, self.score_threshold,
-                self.max_instances))
+            classes, scores, boxes = peak_boxes(*outputs, self.grid_width, self.config.stride,
+                                                self.score_threshold)
         else:
-            classes, scores, boxes = self._second_stage(small, heat[0].cpu(), box[0].cpu())
+            classes, scores, boxes = self._second_stage(small, outputs)
         scale = np.array([width / in_w, height / in_h] * 2)
         boxes = (boxes.astype(float) + 0.5) * scale - 0.5
         return [Detection(self.config.objects[c], float(s), b)
                 for c, s, b in zip(classes.tolist(), scores.tolist(), boxes)
                 if self.wanted[c]]
 
-    def _second_stage(self, small, heat, box):
+    def _second_stage(self, small, outputs):
         """Candidates of the wanted classes re-scored and re-boxed by the verifier."""
-        classes, _, boxes = (x.numpy() for x in decode(
-            heat, box, self.config.stride, self.config.candidate_threshold,
-            self.config.candidates))
+        classes, _, boxes = peak_boxes(*outputs, self.grid_width, self.config.stride,
+                                       self.config.candidate_threshold)
         keep = self.wanted[classes]
         classes, boxes = classes[keep], boxes[keep]
         if not len(classes):

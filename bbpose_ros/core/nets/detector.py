@@ -37,6 +37,7 @@ Design, and why:
 
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
@@ -75,7 +76,7 @@ class DetectorConfig:
     verifier_channels: tuple = ()
     verifier_crop_size: int = 32
     verifier_context: float = 1.2
-    candidates: int = 4
+    candidates: int = 3
     candidate_threshold: float = 0.02
 
     def to_dict(self):
@@ -145,9 +146,77 @@ class CenterBoxNet(nn.Module):
         return self.heatmap(features), self.box(features)
 
 
+class PeakOutputs(nn.Module):
+    """A CenterBoxNet whose outputs are its heatmap peaks (``peaks``), for a runner's graph."""
+
+    def __init__(self, network, count):
+        super().__init__()
+        self.network = network
+        self.count = count
+
+    def forward(self, images):
+        """``peaks`` of the network's outputs for (N, 3, H, W) images."""
+        return peaks(*self.network(images), self.count)
+
+
+def peaks(heatmap_logits, box_log, count):
+    """
+    Find the ``count`` highest local maxima (3x3) of every class heatmap, with box sides.
+
+    Torch operations only, so that it runs inside an exported graph (``PeakOutputs``).
+
+    Args:
+        heatmap_logits: (N, C, h, w) tensor.
+        box_log: (N, 4, h, w) tensor of log(side distance / stride).
+        count: peaks per class (at most h * w).
+
+    Returns:
+        scores (N, C, count) peak probabilities, highest first (0 past the last maximum);
+        cells (N, C, count) long flat cell indices (row * w + col); sides (N, 4, C * count)
+        distances to the left, top, right and bottom box sides in grid cells, class-major.
+
+    """
+    heat = torch.sigmoid(heatmap_logits)
+    heat = heat * (heat == F.max_pool2d(heat, 3, stride=1, padding=1))
+    batch, classes = heat.shape[:2]
+    scores, cells = heat.flatten(2).topk(count, dim=2)
+    sides = torch.exp(box_log.flatten(2)).gather(
+        2, cells.reshape(batch, 1, -1).expand(-1, 4, -1))
+    return scores, cells, sides
+
+
+def peak_boxes(scores, cells, sides, width, stride, score_threshold):
+    """
+    Boxes of one image's peaks (numpy ``peaks`` outputs of that image) above a threshold.
+
+    Args:
+        scores: (C, K) peak probabilities.
+        cells: (C, K) flat cell indices.
+        sides: (4, C * K) side distances in grid cells.
+        width: heatmap width in cells.
+        stride: grid stride in input pixels.
+        score_threshold: lowest peak probability kept.
+
+    Returns:
+        (class_index (M,) int, score (M,) float, box (M, 4) [u_min, v_min, u_max, v_max] in
+        the network input's continuous pixel coordinates), highest score first.
+
+    """
+    classes = np.repeat(np.arange(scores.shape[0]), scores.shape[1])
+    scores, cells = scores.reshape(-1), cells.reshape(-1)
+    keep = np.flatnonzero(scores >= score_threshold)
+    keep = keep[np.argsort(-scores[keep], kind='stable')]
+    centre_u = (cells[keep] % width) * stride + (stride - 1) / 2.0
+    centre_v = (cells[keep] // width) * stride + (stride - 1) / 2.0
+    left, top, right, bottom = sides[:, keep] * stride
+    boxes = np.stack([centre_u - left, centre_v - top, centre_u + right, centre_v + bottom],
+                     axis=1)
+    return classes[keep], scores[keep], boxes
+
+
 def decode(heatmap_logits, box_log, stride, score_threshold, max_per_class):
     """
-    Peaks of the class heatmaps and their boxes, for one image.
+    Peaks of the class heatmaps and their boxes, for one image (``peaks`` + ``peak_boxes``).
 
     Args:
         heatmap_logits: (C, h, w) tensor.
@@ -157,23 +226,9 @@ def decode(heatmap_logits, box_log, stride, score_threshold, max_per_class):
         max_per_class: most peaks kept per class.
 
     Returns:
-        (class_index (K,) long, score (K,) float, box (K, 4) [u_min, v_min, u_max, v_max] in
-        the network input's continuous pixel coordinates), highest score first.
+        numpy (class_index (K,) int, score (K,) float, box (K, 4)) as ``peak_boxes``.
 
     """
-    heat = torch.sigmoid(heatmap_logits)
-    peaks = heat == F.max_pool2d(heat[None], 3, stride=1, padding=1)[0]
-    heat = torch.where(peaks, heat, torch.zeros_like(heat))
-    count, height, width = heat.shape
-    scores, flat = heat.view(count, -1).topk(min(max_per_class, height * width), dim=1)
-    classes = torch.arange(count).view(-1, 1).expand_as(flat)
-    keep = scores >= score_threshold
-    scores, flat, classes = scores[keep], flat[keep], classes[keep]
-    rows, cols = flat // width, flat % width
-    centre_u = cols.float() * stride + (stride - 1) / 2.0
-    centre_v = rows.float() * stride + (stride - 1) / 2.0
-    sides = torch.exp(box_log[:, rows, cols]).T * stride
-    boxes = torch.stack([centre_u - sides[:, 0], centre_v - sides[:, 1],
-                         centre_u + sides[:, 2], centre_v + sides[:, 3]], dim=1)
-    order = torch.argsort(scores, descending=True)
-    return classes[order], scores[order], boxes[order]
+    height, width = heatmap_logits.shape[-2:]
+    outputs = peaks(heatmap_logits[None], box_log[None], min(max_per_class, height * width))
+    return peak_boxes(*(x[0].numpy() for x in outputs), width, stride, score_threshold)

@@ -183,10 +183,10 @@ def detector_validation(network, batches, score_threshold=0.3, max_scenes=200):
                 truth = batches.input_boxes(ids)
                 for j, true_box in zip(ids, truth):
                     total += 1
-                    hit = classes.numpy() == batches.class_of[batches.cache.object[j]]
+                    hit = classes == batches.class_of[batches.cache.object[j]]
                     if not hit.any():
                         continue
-                    box = boxes.numpy()[hit][0]
+                    box = boxes[hit][0]
                     if box_iou(box, true_box)[0, 0] >= 0.5:
                         found += 1
                         size = np.concatenate([true_box[2:] - true_box[:2]] * 2)

@@ -95,7 +95,7 @@ class CandidateCrops:
                 truth_class = class_of[cache.object[ids]]
                 classes, _, boxes = decode(heat[k], sides[k], config.stride,
                                            config.candidate_threshold, settings.mined_per_class)
-                boxes = np.concatenate([boxes.numpy(),
+                boxes = np.concatenate([boxes,
                                         jitter_boxes(truth, rng, settings.box_sigma)])
                 squares = square_boxes(boxes, config.verifier_context)
                 labels, corrections = candidate_targets(boxes, squares, truth, truth_class,
