@@ -14,12 +14,15 @@
 
 """Training: a tiny run lowers the loss, checkpoints resume, batches are consistent."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
 
 from bbpose_ros.cli.main import main
 from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
@@ -100,6 +103,34 @@ def _fake_cache(rng, scenes=2, per_scene=3):
         crop=rng.integers(0, 255, (count, 128, 128, 3), dtype=np.uint8),
         square=square_boxes(boxes, 2.0))
     return cache
+
+
+def _write_cache(folder, cache, camera=CAMERA):
+    """Store a fake cache as a cache folder (meta.json and one shard)."""
+    folder.mkdir()
+    meta = {'objects': list(OBJECTS), 'camera': [camera.fx, camera.fy, camera.cx, camera.cy,
+                                                 camera.width, camera.height],
+            'input_size': [320, 240], 'crop_context': 2.0}
+    (folder / 'meta.json').write_text(json.dumps(meta))
+    np.savez(folder / 'shard_00000.npz', images=cache.images, scene=cache.scene,
+             object=cache.object, box_uv=cache.box_uv, visib=cache.visib,
+             rotation=cache.rotation, translation=np.zeros((len(cache.scene), 3)),
+             crop=cache.crop, square=cache.square)
+
+
+def test_training_cache_joins_folders_and_refuses_a_different_camera(tmp_path):
+    rng = np.random.default_rng(4)
+    first, second = _fake_cache(rng, scenes=2), _fake_cache(rng, scenes=3)
+    _write_cache(tmp_path / 'a', first)
+    _write_cache(tmp_path / 'b', second)
+    joined = TrainingCache([tmp_path / 'a', tmp_path / 'b'])
+    assert len(joined.images) == 5
+    np.testing.assert_array_equal(joined.scene, np.concatenate([first.scene, second.scene + 2]))
+    np.testing.assert_array_equal(joined.images[2:], second.images)
+    other = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
+    _write_cache(tmp_path / 'c', second, other)
+    with pytest.raises(InputError, match='objects, camera or sizes differ'):
+        TrainingCache([tmp_path / 'a', tmp_path / 'c'])
 
 
 def test_detector_targets_decode_to_the_boxes():

@@ -171,6 +171,9 @@ def _verifier_options(parser):
                         help='crop side / longest box side (default %(default)s)')
     parser.add_argument('--candidates', type=int, default=3,
                         help='peaks per class re-scored at run time (default %(default)s)')
+    parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
+                        help='more scene caches to train on, with the same objects, camera '
+                             'and sizes as --cache')
     parser.add_argument('--real-val', action='store_true',
                         help="also measure the detector's recall on the dataset's real frames "
                              '(measured only, never trained on)')
@@ -253,7 +256,7 @@ def run_verifier(args):
     if len(args.channels) != 4:
         raise InputError(f'--channels needs 4 widths, got {len(args.channels)}')
     detector = load_network(args.detector_weights, 'detector')
-    cache = TrainingCache(args.cache, args.max_shards)
+    cache = TrainingCache([args.cache, *args.extra_cache], args.max_shards)
     if tuple(cache.input_size) != tuple(detector.config.input_size):
         raise InputError(f'training cache {args.cache}: input size {cache.input_size} is not '
                          f"the detector's {detector.config.input_size}")

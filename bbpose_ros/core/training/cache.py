@@ -159,7 +159,7 @@ def _write_shard(path, results):
 
 class TrainingCache:
     """
-    All shards of a cache folder, loaded into memory and concatenated.
+    All shards of one or more cache folders, loaded into memory and concatenated.
 
     Attributes:
         objects: object names (index = ``object`` values).
@@ -168,22 +168,38 @@ class TrainingCache:
         images: (S, H_in, W_in, 3) uint8.
         Instance arrays as in the module docstring, with ``scene`` indexing ``images``.
 
+    Args:
+        cache_dirs: a folder, or a list of folders rendered with the same objects, camera and
+            sizes (their scenes follow each other in that order).
+        max_shards: use only the first N shards of each folder.
+
     """
 
-    def __init__(self, cache_dir, max_shards=None):
-        cache_dir = Path(cache_dir)
-        meta_path = cache_dir / 'meta.json'
-        if not meta_path.is_file():
-            raise InputError(f'no training cache in {cache_dir} (missing meta.json); build '
-                             'it with "bbpose train render"')
-        meta = json.loads(meta_path.read_text())
-        self.objects = list(meta['objects'])
-        self.camera = CameraIntrinsics(*meta['camera'][:4], *map(int, meta['camera'][4:]))
-        self.input_size = tuple(meta['input_size'])
-        self.crop_context = float(meta['crop_context'])
-        paths = sorted(cache_dir.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
-        if not paths:
-            raise InputError(f'training cache {cache_dir} has no shards yet')
+    def __init__(self, cache_dirs, max_shards=None):
+        if isinstance(cache_dirs, (str, Path)):
+            cache_dirs = [cache_dirs]
+        paths, first = [], None
+        for cache_dir in map(Path, cache_dirs):
+            meta_path = cache_dir / 'meta.json'
+            if not meta_path.is_file():
+                raise InputError(f'no training cache in {cache_dir} (missing meta.json); '
+                                 'build it with "bbpose train render"')
+            meta = json.loads(meta_path.read_text())
+            layout = (meta['objects'], meta['camera'], meta['input_size'],
+                      meta['crop_context'])
+            if first is not None and layout != first:
+                raise InputError(f'training cache {cache_dir}: objects, camera or sizes differ '
+                                 f'from those of {cache_dirs[0]}')
+            first = layout
+            found = sorted(cache_dir.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]
+            if not found:
+                raise InputError(f'training cache {cache_dir} has no shards yet')
+            paths += found
+        objects, camera, input_size, crop_context = first
+        self.objects = list(objects)
+        self.camera = CameraIntrinsics(*camera[:4], *map(int, camera[4:]))
+        self.input_size = tuple(input_size)
+        self.crop_context = float(crop_context)
         parts = [dict(np.load(p)) for p in paths]
         offsets = np.cumsum([0] + [len(p['images']) for p in parts[:-1]])
         for part, offset in zip(parts, offsets):
