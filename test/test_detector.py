@@ -83,6 +83,12 @@ def test_cascade_forward_shapes():
         probability, _ = net.verifier(torch.rand(5, 3, 32, 32), torch.arange(5))
     assert logits.shape == (5, 9) and corrections.shape == (5, 4) and probability.shape == (5,)
     assert torch.all((probability > 0) & (probability < 1))
+    crops, classes = torch.rand(5, 3, 32, 32), torch.tensor([0, 3, 7, 7, 2])
+    with torch.inference_mode():
+        probability, _ = net.verifier(crops, classes)
+        expected = torch.softmax(net.verifier.outputs(crops)[0], dim=1)[torch.arange(5),
+                                                                        classes + 1]
+    torch.testing.assert_close(probability, expected)      # column 0 is background
     assert CenterBoxNet(DetectorConfig(OBJECTS)).verifier is None
 
 

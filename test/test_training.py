@@ -163,7 +163,7 @@ def test_candidate_crops_are_labelled_by_the_true_boxes():
         labels = mined.labels[mined.scene == scene]
         # Each scene's jittered true boxes come last, labelled with their class.
         assert labels[-len(ids):].tolist() == (cache.object[ids] + 1).tolist()
-        # An untrained heatmap (every cell at its 0.05 prior) gives 2 candidates a class.
+        # An untrained heatmap (near its 0.05 prior everywhere) gives 2 candidates a class.
         assert len(labels) == 2 * len(OBJECTS) + len(ids)
 
 

@@ -108,6 +108,7 @@ class BoxDetector:
         crops = extract_crops(small, squares, self.config.verifier_crop_size)
         scores, corrections = self.verifier(crops, classes.astype(np.int64))
         boxes = boxes + corrections.cpu().numpy() * (squares[:, 2:3] - squares[:, 0:1])
+        boxes[:, 2:] = np.maximum(boxes[:, 2:], boxes[:, :2] + 1.0)   # never inside out
         return best_per_class(classes, scores.cpu().numpy(), boxes, self.score_threshold,
                               self.max_instances)
 

@@ -77,7 +77,7 @@ class RealCrops:
 
 class RealDetections:
     """
-    Real frames for the detector, run as ``load_pipeline`` sets it up (score 0.3, one a name).
+    Real frames for the detector, scored as by ``load_pipeline`` (score 0.3, one a name; torch).
 
     Args:
         frames: BopFrame sequence.

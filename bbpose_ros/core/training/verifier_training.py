@@ -156,7 +156,7 @@ class VerifierBatches:
                 torch.from_numpy(self.candidates.corrections[ids]))
 
 
-def verifier_loss(verifier, batch, settings, reduction='mean'):
+def verifier_loss(verifier, batch, settings):
     """Cross-entropy + ``box_weight`` x smooth L1 of the positives' side corrections."""
     crops, labels, corrections = batch
     logits, predicted = verifier.outputs(crops)
