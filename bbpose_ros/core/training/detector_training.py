@@ -52,6 +52,19 @@ class DetectorTrainSettings:
     train_crop: tuple = (192, 160)
 
 
+def detector_classes(config, cache):
+    """(K,) the detector's class index of each cache object index, -1 where it has none."""
+    return np.array([config.objects.index(n) if n in config.objects else -1
+                     for n in cache.objects])
+
+
+def to_input_pixels(boxes_uv, config, camera):
+    """(M, 4) full-frame continuous-pixel boxes -> the network input's (``input_size``)."""
+    scale = np.array([config.input_size[0] / camera.width,
+                      config.input_size[1] / camera.height] * 2)
+    return (np.asarray(boxes_uv, dtype=float) + 0.5) * scale - 0.5
+
+
 class DetectorBatches:
     """Draws detector batches (images, heatmap, sides, side weights) from a TrainingCache."""
 
@@ -59,14 +72,11 @@ class DetectorBatches:
         self.cache, self.config, self.settings = cache, config, settings
         if tuple(cache.input_size) != tuple(config.input_size):
             raise ValueError(f'cache input size {cache.input_size} != {config.input_size}')
-        self.class_of = np.array([config.objects.index(n) if n in config.objects else -1
-                                  for n in cache.objects])
+        self.class_of = detector_classes(config, cache)
         scenes = len(cache.images)
         val_start = int(scenes * (1 - settings.val_fraction))
         self.train_scenes = np.arange(val_start)
         self.val_scenes = np.arange(val_start, scenes)
-        self.scale = np.array([config.input_size[0] / cache.camera.width,
-                               config.input_size[1] / cache.camera.height] * 2)
         self.by_scene = [np.flatnonzero((cache.scene == s) & (cache.visib >= settings.min_visib)
                                         & (self.class_of[cache.object] >= 0))
                          for s in range(scenes)]
@@ -75,7 +85,7 @@ class DetectorBatches:
 
     def input_boxes(self, ids):
         """(M, 4) amodal boxes of instances ``ids`` in network-input continuous pixels."""
-        return (self.cache.box_uv[ids] + 0.5) * self.scale - 0.5
+        return to_input_pixels(self.cache.box_uv[ids], self.config, self.cache.camera)
 
     def train_batch(self):
         """Images (B, 3, H, W) float, heatmap (B, C, h, w), sides (B, 4, h, w), weight."""

@@ -39,6 +39,7 @@ from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.detector import decode
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import jitter_boxes, photometric
+from bbpose_ros.core.training.detector_training import detector_classes, to_input_pixels
 
 
 @dataclass
@@ -75,10 +76,7 @@ class CandidateCrops:
 
     def __init__(self, network, cache, settings, seed, progress=True, chunk=64):
         config = network.config
-        class_of = np.array([config.objects.index(n) if n in config.objects else -1
-                             for n in cache.objects])
-        scale = np.array([config.input_size[0] / cache.camera.width,
-                          config.input_size[1] / cache.camera.height] * 2)
+        class_of = detector_classes(config, cache)
         rng = np.random.default_rng(seed)
         parts = []
         network.eval()
@@ -91,7 +89,7 @@ class CandidateCrops:
                 scene = start + k
                 ids = np.flatnonzero((cache.scene == scene) & (cache.visib >= settings.min_visib)
                                      & (class_of[cache.object] >= 0))
-                truth = (cache.box_uv[ids] + 0.5) * scale - 0.5
+                truth = to_input_pixels(cache.box_uv[ids], config, cache.camera)
                 truth_class = class_of[cache.object[ids]]
                 classes, _, boxes = decode(heat[k], sides[k], config.stride,
                                            config.candidate_threshold, settings.mined_per_class)
