@@ -52,8 +52,29 @@ def test_recovers_translation_exactly(lmo_models, selection, seed):
     solution = solve_translations(rotations, boxes, points, CAMERA.fx, CAMERA.fy, CAMERA.cx,
                                   CAMERA.cy, selection=selection)
     np.testing.assert_allclose(solution.translations, translations, atol=1e-6)
+    np.testing.assert_allclose(solution.side_residuals_px, 0.0, atol=1e-6)
     assert solution.converged.all()
     assert (solution.iterations <= 10).all()
+
+
+@pytest.mark.parametrize('selection', SELECTIONS)
+def test_side_residuals_measure_how_far_the_pose_misses_each_side(lmo_models, selection):
+    rotations, translations = random_poses(5, len(OBJECTS))
+    points = pad_point_sets([lmo_models[name].hull_points for name in OBJECTS])
+    boxes = exact_boxes(rotations, translations, points)
+    boxes[:, 2] += 12.0                       # the right side 12 px too far: no t fits all four
+    solution = solve_translations(rotations, boxes, points, CAMERA.fx, CAMERA.fy, CAMERA.cx,
+                                  CAMERA.cy, selection=selection)
+    cam = np.einsum('nij,nmj->nmi', rotations, points) + solution.translations[:, None, :]
+    uv = CAMERA.project(cam)
+    reprojected = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+    # Each residual is close to the solved pose's own box side minus the given one (its
+    # touching point need not stay the extreme one once the sides disagree), and least
+    # squares spreads the 12 px over the four sides.
+    np.testing.assert_allclose(solution.side_residuals_px, reprojected - boxes, rtol=0.15,
+                               atol=0.05)
+    assert (np.abs(solution.side_residuals_px).max(axis=1) > 2.0).all()
+    assert (np.abs(solution.side_residuals_px).max(axis=1) < 12.0).all()
 
 
 def test_hull_points_give_the_same_translation_as_all_vertices(lmo_models):

@@ -18,12 +18,14 @@ import numpy as np
 import pytest
 import torch
 
+from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.estimators import BoxDetector, QNetRotationEstimator
 from bbpose_ros.core.inference import inference_network, make_runner
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.pipeline import Detection
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 RNG = np.random.default_rng(5)
@@ -93,6 +95,24 @@ def test_second_stage_detections_agree_between_backends():
         assert a.object_name == b.object_name
         assert abs(a.score - b.score) < 1e-5
         np.testing.assert_allclose(a.box_uv, b.box_uv, atol=1e-3)
+
+
+@pytest.mark.parametrize('target', ['egocentric', 'allocentric'])
+def test_all_hypotheses_agree_between_backends_and_hold_the_best_scored(target):
+    net = _trained_looking(QNet(QNetConfig(OBJECTS, hypotheses=8, rotation_target=target)))
+    camera = CameraIntrinsics(572.4, 573.6, 325.3, 242.0, 640, 480)
+    image = _images(1, 480, 640)[0]
+    detections = [Detection(name, 1.0, np.array([40.0 + 60 * k, 30.0, 130.0 + 60 * k, 150.0]))
+                  for k, name in enumerate(OBJECTS[:5])]
+    found = [QNetRotationEstimator(net, backend, threads=1, all_hypotheses=True)(
+        image, camera, detections) for backend in ('torch', 'onnxruntime')]
+    assert found[0].rotations.shape == (5, 8, 3, 3) and found[0].log_probs.shape == (5, 8)
+    np.testing.assert_allclose(found[0].rotations, found[1].rotations, atol=1e-5)
+    np.testing.assert_allclose(found[0].log_probs, found[1].log_probs, atol=1e-4)
+    np.testing.assert_allclose(np.exp(found[0].log_probs).sum(axis=1), 1.0, atol=1e-6)
+    best = found[0].rotations[np.arange(5), found[0].log_probs.argmax(axis=1)]
+    np.testing.assert_allclose(QNetRotationEstimator(net, 'torch')(image, camera, detections),
+                               best, atol=1e-5)
 
 
 def test_backend_choice_is_checked():

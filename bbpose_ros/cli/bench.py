@@ -99,7 +99,8 @@ def bench_frames(frames, values, warmup):
         models, detector_weights=values['detector_weights'] or None,
         qnet_weights=values['qnet_weights'] or None, score_threshold=values['score_threshold'],
         max_instances=values['max_instances'], backend=values['inference_backend'],
-        device=values['device'], threads=values['inference_threads'] or None)
+        device=values['device'], threads=values['inference_threads'] or None,
+        box_consistency_weight=values['box_consistency_weight'])
     header = Header(frame_id=topics.DEFAULT_FRAME_ID)
     markers = conversions.MarkerArrayBuilder(models)
     report = benchmark_frames(

@@ -21,6 +21,7 @@ from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
 from bbpose_ros.core.bop import BopDataset
 from bbpose_ros.core.detection_eval import format_detection_report, score_detections
 from bbpose_ros.core.evaluation import evaluate, format_report
+from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline import PosePipeline
 
 
@@ -42,6 +43,11 @@ def add_parser(subparsers):
                         help='detector weight file (default: the shipped one)')
     parser.add_argument('--qnet-weights', type=Path, default=None,
                         help='Q-Net weight file (default: the shipped one)')
+    parser.add_argument('--box-consistency-weight', type=float,
+                        default=DEFAULT_BOX_CONSISTENCY_WEIGHT,
+                        help='how much the Bounding Box Equation misfit counts in choosing '
+                             'among Q-Net hypotheses; 0: the best-scored one '
+                             '(default %(default)s)')
     add_objects_argument(parser)
     add_frames_argument(parser)
     parser.add_argument('--min-visib', type=float, default=0.1,
@@ -50,12 +56,14 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None):
+def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None,
+                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     if boxes == 'gt' and rotation == 'gt':
         return PosePipeline(models)
     from bbpose_ros.core.estimators import load_pipeline
-    return load_pipeline(models, detector_weights, qnet_weights)
+    return load_pipeline(models, detector_weights, qnet_weights,
+                         box_consistency_weight=box_consistency_weight)
 
 
 class RecordingDetector:
@@ -88,7 +96,7 @@ def run(args):
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
     pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
-                              args.qnet_weights)
+                              args.qnet_weights, args.box_consistency_weight)
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
@@ -103,7 +111,8 @@ def run(args):
     report['config'] = {'dataset': str(args.dataset), 'boxes': args.boxes,
                         'rotation': args.rotation, 'min_visib': args.min_visib,
                         'detector_weights': _weights_name(args.detector_weights),
-                        'qnet_weights': _weights_name(args.qnet_weights)}
+                        'qnet_weights': _weights_name(args.qnet_weights),
+                        'box_consistency_weight': args.box_consistency_weight}
     print(format_report(report))
     if detection is not None:
         print(f'\ndetector, IoU >= 0.5, instances with visib_fract >= {args.min_visib} '

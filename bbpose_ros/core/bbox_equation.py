@@ -23,7 +23,10 @@ pixel column u_L, with a = (u_L - cx) / fx and P = R X the rotated touching poin
 
 and likewise for the right side and, with fy, cy and the y row, for the top and bottom. The
 four equations form the paper's 4x3 system A t = b (the paper writes it for the camera
-position T = -R^T t; the rows and residuals are the same), solved by least squares.
+position T = -R^T t; the rows and residuals are the same), solved by least squares. Four
+equations for three unknowns: how far the solved pose leaves each touching point from its
+side (``TranslationSolution.side_residuals_px``) tells how well the rotation explains the
+box's shape, which ``hypotheses`` uses to choose among rotations.
 
 Two ways to choose the touching points (``selection``):
 
@@ -68,6 +71,11 @@ class TranslationSolution:
         iterations: (N,) full-perspective re-selections each object needed (0: the direct
             conversion's choice was already right; always 0 with tangent planes).
         converged: (N,) False where ``max_iterations`` ended the re-selection.
+        side_residuals_px: (N, 4) signed pixels from the left, top, right and bottom sides
+            to the projections of their touching points under the solved pose (u for left
+            and right, v for top and bottom); all 0 when the four equations agree, and
+            otherwise close to the pose's own box minus the given one (a touching point
+            need not stay the extreme one then).
 
     """
 
@@ -75,6 +83,7 @@ class TranslationSolution:
     touching: np.ndarray
     iterations: np.ndarray
     converged: np.ndarray
+    side_residuals_px: np.ndarray
 
 
 def pad_point_sets(point_sets):
@@ -133,6 +142,12 @@ class _SideSystems:
         b = self.boxes_norm[rows] * points[:, :, 2] - points[:, _SIDE_INDEX, _SIDE_COORD]
         return np.linalg.solve(self.normal[rows], self.aw_t[rows] @ b[:, :, None])[:, :, 0]
 
+    def residuals_px(self, points, translations, fx, fy):
+        """(N, 4) pixels from each side to its touching point P + t projected, all objects."""
+        moved = points + translations[:, None, :]
+        projected = moved[:, _SIDE_INDEX, _SIDE_COORD] / moved[:, :, 2]
+        return (projected - self.boxes_norm) * [fx, fy, fx, fy]
+
 
 def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights=None,
                        selection='tangent_planes', max_iterations=10):
@@ -170,7 +185,8 @@ def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights
         touching = _tangent_indices(rotations, points, boxes_norm)
         touching_points = np.einsum('nij,nkj->nki', rotations, points[every[:, None], touching])
         translations = systems.solve(every, touching_points)
-        return TranslationSolution(translations, touching, iterations, np.ones(n, dtype=bool))
+        return TranslationSolution(translations, touching, iterations, np.ones(n, dtype=bool),
+                                   systems.residuals_px(touching_points, translations, fx, fy))
     if selection != 'direct_then_perspective':
         raise ValueError(f'selection must be one of {SELECTIONS}, got {selection!r}')
     # (N, 3, M): R X with each coordinate contiguous over the points, so the per-iteration
@@ -196,4 +212,6 @@ def solve_translations(rotations, boxes_uv, points, fx, fy, cx, cy, side_weights
         touching[idx] = chosen[changed]
         translations[idx] = systems.solve(idx, _touching_points(rotated, idx, touching[idx]))
         iterations[idx] += 1
-    return TranslationSolution(translations, touching, iterations, ~active)
+    residuals = systems.residuals_px(_touching_points(rotated, every, touching), translations,
+                                     fx, fy)
+    return TranslationSolution(translations, touching, iterations, ~active, residuals)

@@ -20,6 +20,8 @@ Speed of the pose pipeline stage by stage on real frames, and process readings (
 * ``image_conversion``: the message buffer -> (H, W, 3) RGB array;
 * ``detector``: the 2D detector on the whole frame;
 * ``qnet``: crop + Q-Net for all objects of the frame (one batch);
+* ``hypothesis_selection``: choosing among a multi-hypothesis Q-Net's rotations with the
+  Bounding Box Equation (``hypotheses``; absent when the pipeline does not);
 * ``bbox_equation``: the Bounding Box Equation for all of them (one batched call), and
   ``bbox_equation_per_object`` the same divided by the number of objects;
 * ``messages``: building the frame's output messages.
@@ -42,8 +44,8 @@ import numpy as np
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.evaluation import ground_truth_detections
 
-STAGES = ('image_conversion', 'detector', 'qnet', 'bbox_equation', 'bbox_equation_per_object',
-          'messages')
+STAGES = ('image_conversion', 'detector', 'qnet', 'hypothesis_selection', 'bbox_equation',
+          'bbox_equation_per_object', 'messages')
 MODES = ('detector', 'all_objects')
 
 # The speed budget of issue 5 (ms, on 2 CPU cores): (mode, stage, statistic, limit).
@@ -236,6 +238,8 @@ def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
              'objects': len(result.poses)}
     if result.poses:
         times['qnet'] = result.timings_ms['rotation']
+        if 'hypothesis_selection' in result.timings_ms:
+            times['hypothesis_selection'] = result.timings_ms['hypothesis_selection']
         times['bbox_equation'] = result.timings_ms['translation']
         times['bbox_equation_per_object'] = times['bbox_equation'] / len(result.poses)
     return times

@@ -18,8 +18,9 @@ The learned stages as pipeline callables, and ``load_pipeline`` that wires them 
 * ``BoxDetector``: image -> list[Detection] (amodal boxes, continuous pixels) with the
   CenterNet-style detector of ``nets.detector``.
 * ``QNetRotationEstimator``: (image, camera, detections) -> (N, 3, 3) egocentric
-  model-to-camera rotations from Q-Net; an allocentric Q-Net's output is turned egocentric
-  with the ray through each box centre.
+  model-to-camera rotations from Q-Net, or all of a multi-hypothesis Q-Net's rotations
+  (``hypotheses.RotationHypotheses``) for the pipeline to choose from; an allocentric
+  Q-Net's output is turned egocentric with the ray through each box centre.
 """
 
 import copy
@@ -30,10 +31,13 @@ import torch
 from torch import nn
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, log_softmax,
+                                        RotationHypotheses)
 from bbpose_ros.core.inference import make_runner
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALUE
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.detector import peak_boxes, PeakOutputs
+from bbpose_ros.core.nets.qnet import HypothesisOutputs
 from bbpose_ros.core.pipeline import Detection, PosePipeline
 from bbpose_ros.core.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
 from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
@@ -161,10 +165,13 @@ class QNetRotationEstimator:
         network: a QNet (a copy is prepared for inference by ``make_runner``); a per_object
             one (its forward branches on the object indices) needs the torch backend.
         backend, device, threads: see ``inference.make_runner``.
+        all_hypotheses: return every hypothesis of a multi-hypothesis network as
+            RotationHypotheses (N, H) instead of its best-scored rotations (N, 3, 3).
 
     """
 
-    def __init__(self, network, backend='onnxruntime', device='cpu', threads=None):
+    def __init__(self, network, backend='onnxruntime', device='cpu', threads=None,
+                 all_hypotheses=False):
         self.config = network.config
         if self.config.sharing == 'per_object' and backend != 'torch':
             raise InputError(f'a per_object Q-Net runs only on the torch backend, not on '
@@ -174,22 +181,34 @@ class QNetRotationEstimator:
         # matrices here, and quat_wxyz_to_matrix takes any length (three kernels fewer).
         network = copy.deepcopy(network)
         network.normalize = nn.Identity()
+        self.all_hypotheses = all_hypotheses
+        if all_hypotheses:
+            network = HypothesisOutputs(network)
         self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
                                    dynamic_batch=True)
 
     def __call__(self, image_rgb, camera, detections):
-        """Egocentric rotations (N, 3, 3), one per detection."""
+        """Egocentric rotations (N, 3, 3), one per detection, or RotationHypotheses."""
+        count = self.config.hypotheses if self.all_hypotheses else 1
         if not detections:
+            if self.all_hypotheses:
+                return RotationHypotheses(np.zeros((0, count, 3, 3)), np.zeros((0, count)))
             return np.zeros((0, 3, 3))
         boxes = np.array([d.box_uv for d in detections], dtype=float)
         crops = extract_crops(image_rgb, square_boxes(boxes, self.config.context),
                               self.config.crop_size)
         index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
-        q_wxyz = self.network(crops, index).cpu().numpy()
+        outputs = self.network(crops, index)
+        q_wxyz = (outputs[0] if self.all_hypotheses else outputs).cpu().numpy().reshape(-1, 4)
         if self.config.rotation_target == 'allocentric':
             # R_ego = V R_allo, composed as quaternions: fewer array operations than matrices.
-            q_wxyz = quat_multiply(ray_quaternion(box_centre_rays(boxes, camera)), q_wxyz)
-        return quat_wxyz_to_matrix(q_wxyz)
+            rays = box_centre_rays(boxes, camera)
+            q_wxyz = quat_multiply(ray_quaternion(np.repeat(rays, count, axis=0)), q_wxyz)
+        rotations = quat_wxyz_to_matrix(q_wxyz)
+        if not self.all_hypotheses:
+            return rotations
+        return RotationHypotheses(rotations.reshape(-1, count, 3, 3),
+                                  log_softmax(outputs[1].cpu().numpy().astype(float)))
 
     def _blank_batch(self, count):
         size = self.config.crop_size
@@ -209,7 +228,8 @@ class QNetRotationEstimator:
 
 
 def load_pipeline(models, detector_weights=None, qnet_weights=None, score_threshold=0.3,
-                  max_instances=1, backend='onnxruntime', device='cpu', threads=None):
+                  max_instances=1, backend='onnxruntime', device='cpu', threads=None,
+                  box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT):
     """
     Build a PosePipeline with the learned detector and Q-Net.
 
@@ -222,9 +242,12 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
         backend: inference backend, 'onnxruntime' or 'torch' (see ``inference``).
         device: torch device, e.g. 'cpu' ('onnxruntime' runs on the CPU only).
         threads: intra-op threads of torch and ONNX Runtime (None: their defaults).
+        box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
+            Equation's misfit counts in choosing a hypothesis (``hypotheses``); 0: the
+            network's best-scored one.
 
     Returns:
-        PosePipeline(models, detector, rotation_estimator).
+        PosePipeline(models, detector, rotation_estimator, box_consistency_weight).
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file, or a bad argument.
@@ -234,6 +257,8 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
         raise InputError(f'score_threshold must be in [0, 1], got {score_threshold}')
     if max_instances < 1:
         raise InputError(f'max_instances must be at least 1, got {max_instances}')
+    if box_consistency_weight < 0:
+        raise InputError(f'box_consistency_weight must be >= 0, got {box_consistency_weight}')
     if threads is not None:
         if threads < 1:
             raise InputError(f'threads must be at least 1, got {threads}')
@@ -242,9 +267,11 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
     detector = BoxDetector(
         load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
         score_threshold, max_instances, backend, device, threads)
+    qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
     rotation = QNetRotationEstimator(
-        load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names), backend, device,
-        threads)
+        qnet, backend, device, threads,
+        all_hypotheses=qnet.config.hypotheses > 1 and box_consistency_weight > 0)
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
-    return PosePipeline(models, detector, rotation)
+    return PosePipeline(models, detector, rotation,
+                        box_consistency_weight=box_consistency_weight)

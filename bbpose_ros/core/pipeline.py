@@ -19,7 +19,9 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
 
 * a detector ``detect(image_rgb) -> list[Detection]``;
 * a rotation estimator ``estimate(image_rgb, camera, detections) -> (N, 3, 3)``
-  model-to-camera (egocentric) rotations, one per detection;
+  model-to-camera (egocentric) rotations, one per detection, or several per detection
+  (``hypotheses.RotationHypotheses``), of which ``hypotheses.HypothesisSelector`` keeps
+  the one that best explains the box;
 * the Bounding Box Equation for the translations (``bbox_equation``).
 """
 
@@ -30,6 +32,8 @@ import numpy as np
 
 from bbpose_ros.core.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, HypothesisSelector,
+                                        RotationHypotheses)
 
 
 @dataclass(frozen=True)
@@ -87,16 +91,19 @@ class PosePipeline:
     Args:
         models: {name: ObjectModel} of the objects to report.
         detector: callable image -> detections, or None when detections are always given.
-        rotation_estimator: callable (image, camera, detections) -> (N, 3, 3), or None when
-            rotations are always given.
+        rotation_estimator: callable (image, camera, detections) -> (N, 3, 3) rotations or
+            RotationHypotheses, or None when rotations are always given.
         selection: how the Bounding Box Equation chooses its touching points
             (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
+        box_consistency_weight: how ``HypothesisSelector`` weighs the box misfit of
+            RotationHypotheses against their log-probabilities (0: the likeliest one).
 
     """
 
     def __init__(self, models, detector=None, rotation_estimator=None,
-                 selection='tangent_planes', max_iterations=10):
+                 selection='tangent_planes', max_iterations=10,
+                 box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT):
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -104,6 +111,7 @@ class PosePipeline:
         self.rotation_estimator = rotation_estimator
         self.selection = selection
         self.max_iterations = max_iterations
+        self.hypothesis_selector = HypothesisSelector(self.models, box_consistency_weight)
 
     def estimate(self, image_rgb, camera, detections=None, rotations=None):
         """
@@ -113,7 +121,8 @@ class PosePipeline:
             image_rgb: (H, W, 3) uint8 image, H x W matching ``camera``.
             camera: CameraIntrinsics of the image.
             detections: optional list of Detection to use instead of the detector.
-            rotations: optional (N, 3, 3) rotations to use instead of the estimator.
+            rotations: optional (N, 3, 3) rotations or RotationHypotheses to use instead of
+                the estimator.
 
         Returns:
             A FrameResult; poses keep the detections' order.
@@ -134,6 +143,10 @@ class PosePipeline:
             stage = time.perf_counter()
             rotations = self.rotation_estimator(image_rgb, camera, detections)
             timings['rotation'] = _ms_since(stage)
+        if isinstance(rotations, RotationHypotheses):
+            stage = time.perf_counter()
+            rotations = self.hypothesis_selector(camera, detections, rotations)
+            timings['hypothesis_selection'] = _ms_since(stage)
         stage = time.perf_counter()
         poses = self.translations(camera, detections, rotations)
         timings['translation'] = _ms_since(stage)

@@ -79,6 +79,7 @@ def build_pipeline(config):
                              qnet_weights=config.qnet_weights,
                              score_threshold=config.score_threshold,
                              max_instances=config.max_instances,
+                             box_consistency_weight=config.box_consistency_weight,
                              backend=config.inference_backend, device=config.device,
                              threads=config.inference_threads or None)
     except InputError as err:

@@ -31,6 +31,7 @@ import yaml
 
 from bbpose_ros.cli.common import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.inference import BACKENDS
 
 NODE_NAME = 'bbpose_node'
@@ -66,6 +67,10 @@ PARAMETERS = {
         'Detections scoring below this (0..1) are ignored.', float_range=(0.0, 1.0))),
     'max_instances': (1, _descriptor(
         'Most instances reported per object and frame.', int_range=(1, 100))),
+    'box_consistency_weight': (DEFAULT_BOX_CONSISTENCY_WEIGHT, _descriptor(
+        'With a multi-hypothesis Q-Net (the shipped one has 8), how much the Bounding Box '
+        'Equation misfit (largest side residual / box side) counts against the log-probability '
+        'in choosing a rotation; 0: the best-scored one.', float_range=(0.0, 1000.0))),
     'inference_backend': ('onnxruntime', _descriptor(
         'What runs the networks: onnxruntime (CPU only, the fastest there) or torch.')),
     'device': ('cpu', _descriptor(
@@ -101,6 +106,7 @@ class NodeConfig:
     qnet_weights: Path
     score_threshold: float
     max_instances: int
+    box_consistency_weight: float
     inference_backend: str
     device: str
     inference_threads: int
@@ -137,6 +143,7 @@ def declare_parameters(node):
         detector_weights=_weights_file('detector_weights', value['detector_weights']),
         qnet_weights=_weights_file('qnet_weights', value['qnet_weights']),
         score_threshold=value['score_threshold'], max_instances=value['max_instances'],
+        box_consistency_weight=value['box_consistency_weight'],
         inference_backend=value['inference_backend'], device=value['device'],
         inference_threads=value['inference_threads'],
         qos=QoSProfile(depth=value['qos_depth'],

@@ -211,3 +211,15 @@ class QNet(nn.Module):
         columns = object_index.unsqueeze(1) * width + torch.arange(width,
                                                                    device=features.device)
         return self.head(features).gather(1, columns)
+
+
+class HypothesisOutputs(nn.Module):
+    """A QNet whose outputs are all its hypotheses (``QNet.hypotheses``), for a runner's graph."""
+
+    def __init__(self, network):
+        super().__init__()
+        self.network = network
+
+    def forward(self, crops, object_index):
+        """Quaternions (N, H, 4) wxyz and scores (N, H) of (N, 3, S, S) crops."""
+        return self.network.hypotheses(crops, object_index)
