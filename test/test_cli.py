@@ -34,9 +34,12 @@ def bbpose(*args, cwd=None):
 def test_eval_with_ground_truth_boxes_and_rotations(lmo_root, tmp_path):
     out = tmp_path / 'report.json'
     result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
-                    '--objects', 'ape,driller', '--max-frames', '10', '--json', out)
+                    '--objects', 'ape,driller', '--max-frames', '10', '--json', out,
+                    '--plots', tmp_path / 'plots')
     assert result.returncode == 0, result.stderr
     assert 'driller' in result.stdout and 'mean' in result.stdout
+    for chart in ('recall_curves.png', 'objects.png', 'visibility.png'):
+        assert (tmp_path / 'plots' / chart).stat().st_size > 1000
     report = json.loads(out.read_text())
     assert sorted(report['objects']) == ['ape', 'driller']
     for values in list(report['objects'].values()) + [report['mean']]:

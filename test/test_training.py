@@ -85,6 +85,18 @@ def test_run_loop_checkpoints_and_resumes(tmp_path):
     assert [r['step'] for r in RunLog(tmp_path).rows()] == [5, 10, 15, 20]
     assert exported == [5, 10, 15, 20]
     assert (tmp_path / 'loss.png').stat().st_size > 1000
+    assert not (tmp_path / 'sim_to_real.png').exists()     # no real-frame figures logged
+
+
+def test_real_frame_figures_get_a_sim_to_real_chart(tmp_path):
+    net = torch.nn.Linear(2, 1)
+    optimizer = torch.optim.SGD(net.parameters(), 0.0)
+    figures = {'val_loss': 0.1, 'val_median_deg': 30.0, 'real_median_deg': 45.0}
+    run_loop(tmp_path, net, optimizer, lambda _: 1.0, 4, None, 0.0, validate=lambda: figures,
+             every=2, progress=False)
+    rows = RunLog(tmp_path).rows()
+    assert [r['real_median_deg'] for r in rows] == [45.0, 45.0]
+    assert (tmp_path / 'sim_to_real.png').stat().st_size > 1000
 
 
 def _fake_cache(rng, scenes=2, per_scene=3):

@@ -20,7 +20,7 @@ from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
                                    add_objects_argument, write_json_atomic)
 from bbpose_ros.core.bop import BopDataset
 from bbpose_ros.core.detection_eval import format_detection_report, score_detections
-from bbpose_ros.core.evaluation import evaluate, format_report
+from bbpose_ros.core.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline import PosePipeline
 
@@ -53,6 +53,9 @@ def add_parser(subparsers):
     parser.add_argument('--min-visib', type=float, default=0.1,
                         help='count instances at least this visible (default %(default)s)')
     parser.add_argument('--json', type=Path, default=None, help='write the report here')
+    parser.add_argument('--plots', type=Path, default=None,
+                        help='write charts into this folder: recall curves, per-object '
+                             'recalls, errors by visible fraction')
     parser.set_defaults(func=run)
 
 
@@ -100,9 +103,10 @@ def run(args):
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
-    report = evaluate(frames, pipeline, boxes=args.boxes,
-                      rotation='gt' if args.rotation == 'gt' else 'estimator',
-                      min_visib=args.min_visib)
+    scores, timings = score_frames(frames, pipeline, boxes=args.boxes,
+                                   rotation='gt' if args.rotation == 'gt' else 'estimator',
+                                   min_visib=args.min_visib)
+    report = make_report(scores, timings, len(frames))
     detection = None
     if recorder is not None:
         pipeline.detector = recorder.detector
@@ -121,4 +125,15 @@ def run(args):
     if args.json is not None:
         write_json_atomic(args.json, report)
         print(f'report written to {args.json}')
+    if args.plots is not None:
+        write_plots(args.plots, scores, report['objects'])
+        print(f'plots written to {args.plots}')
     return 0
+
+
+def write_plots(folder, scores, per_object):
+    """Write the evaluation charts into ``folder`` (matplotlib is imported only here)."""
+    from bbpose_ros.core import plots
+    plots.recall_curves(scores, folder / 'recall_curves.png')
+    plots.object_bars(per_object, folder / 'objects.png')
+    plots.errors_by_visibility(scores, folder / 'visibility.png')

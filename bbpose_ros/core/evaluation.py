@@ -43,7 +43,7 @@ POSE_KEYS = ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px', 're_median_d
 
 @dataclass(frozen=True)
 class InstanceScore:
-    """Errors of one counted ground-truth instance (NaN errors where it was missed)."""
+    """Errors of one counted ground-truth instance (NaN where missed), and how visible it is."""
 
     object_name: str
     detected: bool
@@ -54,6 +54,7 @@ class InstanceScore:
     te_m: float
     proj_px: float
     euler_deg: float
+    visib_fract: float = float('nan')
 
 
 def box_iou(boxes_a, boxes_b):
@@ -96,14 +97,15 @@ def score_instance(model, instance, pose, camera):
     threshold = ADD_THRESHOLD * model.diameter
     if pose is None:
         nan = float('nan')
-        return InstanceScore(model.name, False, inside, nan, threshold, nan, nan, nan, nan)
+        return InstanceScore(model.name, False, inside, nan, threshold, nan, nan, nan, nan,
+                             instance.visib_fract)
     args = (pose.rotation, pose.translation, instance.rotation, instance.translation)
     distance = metrics.adi if model.is_symmetric else metrics.add
     re_deg, te_m = metrics.cm_deg_errors(*args, model.symmetry_transforms)
     return InstanceScore(
         model.name, True, inside, distance(*args, model.eval_points), threshold, re_deg, te_m,
         metrics.proj(*args, camera.k, model.eval_points),
-        float(euler_error_deg(pose.rotation, instance.rotation)[0]))
+        float(euler_error_deg(pose.rotation, instance.rotation)[0]), instance.visib_fract)
 
 
 def summarize(scores):
@@ -153,8 +155,25 @@ def ground_truth_detections(instances):
 
 
 def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progress=True):
+    """Run the pipeline over BOP frames and score it (``score_frames``, ``make_report``)."""
+    return make_report(*score_frames(frames, pipeline, boxes, rotation, min_visib, progress))
+
+
+def make_report(scores, timings, frame_count):
     """
-    Run the pipeline over BOP frames and score it.
+    Make the report dict of ``score_frames``' results.
+
+    Returns:
+        {'objects': {name: POSE_KEYS}, 'mean': {...}, 'timing_ms': {...}, 'frames': count}.
+
+    """
+    return dict(summarize_objects(scores), timing_ms=timing_summary(timings),
+                frames=frame_count)
+
+
+def score_frames(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progress=True):
+    """
+    Run the pipeline over BOP frames and score every counted instance.
 
     Args:
         frames: BopFrame list.
@@ -165,8 +184,7 @@ def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progres
         progress: show a progress bar on stderr.
 
     Returns:
-        The report dict: {'objects': {name: POSE_KEYS}, 'mean': {...}, 'timing_ms': {...},
-        'frames': number of frames}.
+        ({name: [InstanceScore]}, [per-frame stage timings in ms]).
 
     """
     scores = {name: [] for name in pipeline.models}
@@ -190,8 +208,7 @@ def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progres
         timings.append(result.timings_ms)
         for score in score_frame(pipeline.models, counted, result.poses, frame.camera):
             scores[score.object_name].append(score)
-    return dict(summarize_objects(scores), timing_ms=timing_summary(timings),
-                frames=len(frames))
+    return scores, timings
 
 
 def score_frame(models, instances, poses, camera):

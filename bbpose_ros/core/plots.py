@@ -34,6 +34,7 @@ PALETTE = ((243, 195, 0), (135, 86, 146), (243, 132, 0), (161, 202, 241), (190, 
            (194, 178, 128), (132, 132, 130), (0, 136, 86), (230, 143, 172), (0, 103, 165),
            (249, 147, 121), (96, 78, 151), (246, 166, 0), (179, 68, 108), (220, 211, 0))
 GROUND_TRUTH_COLOR = (0, 255, 0)
+VISIBILITY_EDGES = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
 _SUBPIXEL_BITS = 4        # cv2 drawing with 1/16 pixel precision
 _MAX_COORDINATE = 1 << 20  # projected points far off the image are clipped to this
 
@@ -137,6 +138,48 @@ def recall_curves(scores, path):
         axis.set(xlabel=label, ylabel='recall', ylim=(0.0, 1.0), xlim=thresholds[[0, -1]])
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize='small')
+    _save(figure, path)
+
+
+def errors_by_visibility(scores, path, edges=VISIBILITY_EDGES):
+    """
+    Write how the errors grow as objects hide, all objects pooled, per visible-fraction bin.
+
+    Panels: the median rotation error (deg) and translation error (mm) of the found
+    instances with their interquartile range, and the shares found and within ADD(-S) of
+    all instances. ``scores`` maps object names to lists of evaluation.InstanceScore; bin k
+    holds visible fractions in (edges[k], edges[k + 1]], the first also edges[0]. Each bin's
+    label gives its instance count.
+    """
+    pooled = [s for object_scores in scores.values() for s in object_scores]
+    visib = np.array([s.visib_fract for s in pooled], dtype=float)
+    bins = np.clip(np.searchsorted(edges, visib, side='left') - 1, 0, len(edges) - 2)
+    labels = [f'{edges[k]:.1f}-{edges[k + 1]:.1f}\n(n={np.sum(bins == k)})'
+              for k in range(len(edges) - 1)]
+    positions = np.arange(len(labels))
+    figure, axes = _figure(3, width=15.0, height=4.0)
+    for axis, (label, error) in zip(axes, (('rotation error (deg)', lambda s: s.re_deg),
+                                           ('translation error (mm)',
+                                            lambda s: s.te_m * 1e3))):
+        errors = np.array([error(s) for s in pooled], dtype=float)
+        quartiles = np.array([np.nanpercentile(errors[bins == k], (25, 50, 75))
+                              if np.isfinite(errors[bins == k]).any() else [np.nan] * 3
+                              for k in positions])
+        axis.fill_between(positions, quartiles[:, 0], quartiles[:, 2], alpha=0.25,
+                          label='25-75 %')
+        axis.plot(positions, quartiles[:, 1], marker='o', label='median')
+        axis.set(ylabel=label, ylim=(0.0, None))
+    found = np.array([s.detected for s in pooled], dtype=bool)
+    add_ok = np.array([s.add_error < s.add_threshold for s in pooled], dtype=bool)
+    for values, label in ((found, 'found'), (add_ok, 'ADD(-S) < 0.1 d')):
+        axes[2].plot(positions, [values[bins == k].mean() if np.any(bins == k) else np.nan
+                                 for k in positions], marker='o', label=label)
+    axes[2].set(ylabel='share of instances', ylim=(0.0, 1.0))
+    for axis in axes:
+        axis.set_xticks(positions, labels)
+        axis.set_xlabel('visible fraction')
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize='small')
     _save(figure, path)
 
 

@@ -170,3 +170,25 @@ def _plot_log(log):
     if rows and 'val_loss' in rows[0]:
         series['validation loss'] = (steps, [r['val_loss'] for r in rows])
     plot_curves(log.run_dir / 'loss.png', series, log.run_dir.name, log_y=True)
+    if rows:
+        plot_sim_to_real(log.run_dir, rows)
+
+
+def plot_sim_to_real(run_dir, rows):
+    """
+    Chart the held-out synthetic figures (val_*) against the real-frame ones (real_*).
+
+    Written as ``sim_to_real.png`` when the log has real figures (``--real-val``): the
+    degrees when there are real ones in degrees, otherwise the fractions.
+    """
+    real = [key for key in rows[0] if key.startswith('real_')]
+    if not real:
+        return
+    degrees = any(key.endswith('_deg') for key in real)
+    keys = [key for key in rows[0] if key.startswith(('val_', 'real_')) and key != 'val_loss'
+            and key.endswith('_deg') == degrees]
+    steps = [r['step'] for r in rows]
+    plot_curves(Path(run_dir) / 'sim_to_real.png',
+                {key: (steps, [r[key] for r in rows]) for key in keys},
+                f'{Path(run_dir).name}: synthetic (val_) vs real (real_) frames',
+                ylabel='degrees' if degrees else 'fraction')
