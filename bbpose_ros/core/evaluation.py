@@ -156,7 +156,8 @@ def ground_truth_detections(instances):
 
 def evaluate(frames, pipeline, boxes='gt', rotation='gt', min_visib=0.1, progress=True):
     """Run the pipeline over BOP frames and score it (``score_frames``, ``make_report``)."""
-    return make_report(*score_frames(frames, pipeline, boxes, rotation, min_visib, progress))
+    scores, timings = score_frames(frames, pipeline, boxes, rotation, min_visib, progress)
+    return make_report(scores, timings, len(frames))
 
 
 def make_report(scores, timings, frame_count):
