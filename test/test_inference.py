@@ -97,16 +97,19 @@ def test_second_stage_detections_agree_between_backends():
         np.testing.assert_allclose(a.box_uv, b.box_uv, atol=1e-3)
 
 
-@pytest.mark.parametrize('target', ['egocentric', 'allocentric'])
-def test_all_hypotheses_agree_between_backends_and_hold_the_best_scored(target):
-    net = _trained_looking(QNet(QNetConfig(OBJECTS, hypotheses=8, rotation_target=target)))
+@pytest.mark.parametrize('target, count', [('egocentric', 8), ('allocentric', 8),
+                                           ('allocentric', 1)])
+def test_all_hypotheses_agree_between_backends_and_hold_the_best_scored(target, count):
+    net = _trained_looking(QNet(QNetConfig(OBJECTS, hypotheses=count, rotation_target=target)))
     camera = CameraIntrinsics(572.4, 573.6, 325.3, 242.0, 640, 480)
     image = _images(1, 480, 640)[0]
     detections = [Detection(name, 1.0, np.array([40.0 + 60 * k, 30.0, 130.0 + 60 * k, 150.0]))
                   for k, name in enumerate(OBJECTS[:5])]
     found = [QNetRotationEstimator(net, backend, threads=1, all_hypotheses=True)(
         image, camera, detections) for backend in ('torch', 'onnxruntime')]
-    assert found[0].rotations.shape == (5, 8, 3, 3) and found[0].log_probs.shape == (5, 8)
+    for hypotheses in found:
+        assert hypotheses.rotations.shape == (5, count, 3, 3)
+        assert hypotheses.log_probs.shape == (5, count)
     np.testing.assert_allclose(found[0].rotations, found[1].rotations, atol=1e-5)
     np.testing.assert_allclose(found[0].log_probs, found[1].log_probs, atol=1e-4)
     np.testing.assert_allclose(np.exp(found[0].log_probs).sum(axis=1), 1.0, atol=1e-6)

@@ -25,6 +25,7 @@ import pytest
 from bbpose_ros.core.detection_eval import evaluate_detections
 from bbpose_ros.core.estimators import load_pipeline
 from bbpose_ros.core.evaluation import evaluate
+from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline import FrameResult
 
 FRAMES = 12
@@ -46,6 +47,13 @@ ROTATION_MEDIAN_CEILING_DEG = 70.0
 @pytest.fixture(scope='module')
 def pipeline(lmo_models):
     return load_pipeline(lmo_models, threads=2)
+
+
+def test_hypotheses_are_chosen_by_the_box_unless_the_weight_is_zero(pipeline, lmo_models):
+    assert pipeline.rotation_estimator.all_hypotheses
+    assert pipeline.hypothesis_selector.weight == DEFAULT_BOX_CONSISTENCY_WEIGHT
+    plain = load_pipeline(lmo_models, threads=2, box_consistency_weight=0.0)
+    assert not plain.rotation_estimator.all_hypotheses
 
 
 def test_pipeline_runs_on_a_real_frame(pipeline, lmo_frames):

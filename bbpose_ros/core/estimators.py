@@ -31,8 +31,8 @@ import torch
 from torch import nn
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, log_softmax,
-                                        RotationHypotheses)
+from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, HypothesisSelector,
+                                        log_softmax, RotationHypotheses)
 from bbpose_ros.core.inference import make_runner
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALUE
 from bbpose_ros.core.nets.crops import square_boxes
@@ -247,7 +247,7 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
             network's best-scored one.
 
     Returns:
-        PosePipeline(models, detector, rotation_estimator, box_consistency_weight).
+        PosePipeline(models, detector, rotation_estimator, hypothesis_selector).
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file, or a bad argument.
@@ -257,8 +257,7 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
         raise InputError(f'score_threshold must be in [0, 1], got {score_threshold}')
     if max_instances < 1:
         raise InputError(f'max_instances must be at least 1, got {max_instances}')
-    if box_consistency_weight < 0:
-        raise InputError(f'box_consistency_weight must be >= 0, got {box_consistency_weight}')
+    selector = HypothesisSelector(models, box_consistency_weight)
     if threads is not None:
         if threads < 1:
             raise InputError(f'threads must be at least 1, got {threads}')
@@ -270,8 +269,7 @@ def load_pipeline(models, detector_weights=None, qnet_weights=None, score_thresh
     qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
     rotation = QNetRotationEstimator(
         qnet, backend, device, threads,
-        all_hypotheses=qnet.config.hypotheses > 1 and box_consistency_weight > 0)
+        all_hypotheses=qnet.config.hypotheses > 1 and selector.weight > 0)
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
-    return PosePipeline(models, detector, rotation,
-                        box_consistency_weight=box_consistency_weight)
+    return PosePipeline(models, detector, rotation, hypothesis_selector=selector)

@@ -54,7 +54,7 @@ class InstanceScore:
     te_m: float
     proj_px: float
     euler_deg: float
-    visib_fract: float = float('nan')
+    visib_fract: float
 
 
 def box_iou(boxes_a, boxes_b):

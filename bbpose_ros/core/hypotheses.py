@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bbpose_ros.core.bbox_equation import pad_point_sets, solve_translations
+from bbpose_ros.core.errors import InputError
 
 DEFAULT_BOX_CONSISTENCY_WEIGHT = 20.0
 SCORING_POINTS = 128
@@ -89,21 +90,28 @@ class HypothesisSelector:
             0 keeps the network's best-scored hypothesis and solves nothing.
         points_per_object: hull points kept for the scoring solves.
 
+    Raises:
+        InputError: a negative or NaN weight; on a call, hypotheses that do not match the
+            detections.
+
     """
 
     def __init__(self, models, weight=DEFAULT_BOX_CONSISTENCY_WEIGHT,
                  points_per_object=SCORING_POINTS):
-        if weight < 0:
-            raise ValueError(f'box consistency weight must be >= 0, got {weight}')
+        if not weight >= 0:      # also refuses NaN
+            raise InputError(f'box_consistency_weight must be >= 0, got {weight}')
         self.weight = float(weight)
         self._index = {name: k for k, name in enumerate(models)}
-        self._points = pad_point_sets([farthest_points(m.hull_points, points_per_object)
-                                       for m in models.values()])
+        self._points = None if self.weight == 0.0 else pad_point_sets(
+            [farthest_points(m.hull_points, points_per_object) for m in models.values()])
 
     def __call__(self, camera, detections, hypotheses):
         """(N, 3, 3) the chosen rotation of each of the N detections."""
         rotations, log_probs = hypotheses.rotations, hypotheses.log_probs
-        n, count = log_probs.shape
+        n, count = rotations.shape[:2]
+        if log_probs.shape != (n, count) or n != len(detections):
+            raise InputError(f'rotation hypotheses {rotations.shape[:2]} with log-probabilities '
+                             f'{log_probs.shape} for {len(detections)} detections')
         if n == 0 or count == 1 or self.weight == 0.0:
             return rotations[np.arange(n), log_probs.argmax(axis=1)]
         boxes = np.repeat(np.stack([d.box_uv for d in detections]).astype(float), count, axis=0)

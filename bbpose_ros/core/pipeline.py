@@ -32,8 +32,7 @@ import numpy as np
 
 from bbpose_ros.core.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, HypothesisSelector,
-                                        RotationHypotheses)
+from bbpose_ros.core.hypotheses import HypothesisSelector, RotationHypotheses
 
 
 @dataclass(frozen=True)
@@ -96,14 +95,13 @@ class PosePipeline:
         selection: how the Bounding Box Equation chooses its touching points
             (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
-        box_consistency_weight: how ``HypothesisSelector`` weighs the box misfit of
-            RotationHypotheses against their log-probabilities (0: the likeliest one).
+        hypothesis_selector: the HypothesisSelector that picks one of RotationHypotheses;
+            None: one with the default weight, made when hypotheses first come.
 
     """
 
     def __init__(self, models, detector=None, rotation_estimator=None,
-                 selection='tangent_planes', max_iterations=10,
-                 box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT):
+                 selection='tangent_planes', max_iterations=10, hypothesis_selector=None):
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -111,7 +109,7 @@ class PosePipeline:
         self.rotation_estimator = rotation_estimator
         self.selection = selection
         self.max_iterations = max_iterations
-        self.hypothesis_selector = HypothesisSelector(self.models, box_consistency_weight)
+        self.hypothesis_selector = hypothesis_selector
 
     def estimate(self, image_rgb, camera, detections=None, rotations=None):
         """
@@ -145,6 +143,8 @@ class PosePipeline:
             timings['rotation'] = _ms_since(stage)
         if isinstance(rotations, RotationHypotheses):
             stage = time.perf_counter()
+            if self.hypothesis_selector is None:
+                self.hypothesis_selector = HypothesisSelector(self.models)
             rotations = self.hypothesis_selector(camera, detections, rotations)
             timings['hypothesis_selection'] = _ms_since(stage)
         stage = time.perf_counter()

@@ -154,8 +154,8 @@ def errors_by_visibility(scores, path, edges=VISIBILITY_EDGES):
     pooled = [s for object_scores in scores.values() for s in object_scores]
     visib = np.array([s.visib_fract for s in pooled], dtype=float)
     bins = np.clip(np.searchsorted(edges, visib, side='left') - 1, 0, len(edges) - 2)
-    labels = [f'{edges[k]:.1f}-{edges[k + 1]:.1f}\n(n={np.sum(bins == k)})'
-              for k in range(len(edges) - 1)]
+    labels = [(f'<= {edges[1]:.1f}' if k == 0 else f'{edges[k]:.1f}-{edges[k + 1]:.1f}')
+              + f'\n(n={np.sum(bins == k)})' for k in range(len(edges) - 1)]
     positions = np.arange(len(labels))
     figure, axes = _figure(3, width=15.0, height=4.0)
     for axis, (label, error) in zip(axes, (('rotation error (deg)', lambda s: s.re_deg),
@@ -174,7 +174,7 @@ def errors_by_visibility(scores, path, edges=VISIBILITY_EDGES):
     for values, label in ((found, 'found'), (add_ok, 'ADD(-S) < 0.1 d')):
         axes[2].plot(positions, [values[bins == k].mean() if np.any(bins == k) else np.nan
                                  for k in positions], marker='o', label=label)
-    axes[2].set(ylabel='share of instances', ylim=(0.0, 1.0))
+    axes[2].set(ylabel='share of instances', ylim=(0.0, 1.05))
     for axis in axes:
         axis.set_xticks(positions, labels)
         axis.set_xlabel('visible fraction')

@@ -69,8 +69,9 @@ PARAMETERS = {
         'Most instances reported per object and frame.', int_range=(1, 100))),
     'box_consistency_weight': (DEFAULT_BOX_CONSISTENCY_WEIGHT, _descriptor(
         'With a multi-hypothesis Q-Net (the shipped one has 8), how much the Bounding Box '
-        'Equation misfit (largest side residual / box side) counts against the log-probability '
-        'in choosing a rotation; 0: the best-scored one.', float_range=(0.0, 1000.0))),
+        'Equation misfit (largest side residual / longest box side) counts against the '
+        'log-probability in choosing a rotation; 0: the best-scored one.',
+        float_range=(0.0, 1000.0))),
     'inference_backend': ('onnxruntime', _descriptor(
         'What runs the networks: onnxruntime (CPU only, the fastest there) or torch.')),
     'device': ('cpu', _descriptor(

@@ -191,7 +191,7 @@ class QNet(nn.Module):
         raw = self._heads(crops, object_index)
         count = self.config.hypotheses
         if count == 1:
-            return self.normalize(raw).unsqueeze(1), raw.new_zeros((len(raw), 1))
+            return self.normalize(raw).unsqueeze(1), torch.zeros_like(raw[:, :1])
         quats = self.normalize(raw[:, :4 * count].reshape(-1, count, 4))
         return quats, raw[:, 4 * count:]
 

@@ -176,19 +176,20 @@ def _plot_log(log):
 
 def plot_sim_to_real(run_dir, rows):
     """
-    Chart the held-out synthetic figures (val_*) against the real-frame ones (real_*).
+    Chart each figure measured on both held-out renders (val_X) and real frames (real_X).
 
-    Written as ``sim_to_real.png`` when the log has real figures (``--real-val``): the
-    degrees when there are real ones in degrees, otherwise the fractions.
+    Written as ``sim_to_real.png`` when the log has such pairs (Q-Net's ``--real-val``:
+    median rotation error and acc15), in degrees when the pairs are, else as fractions.
     """
-    real = [key for key in rows[0] if key.startswith('real_')]
-    if not real:
+    pairs = [key[len('real_'):] for key in rows[0]
+             if key.startswith('real_') and 'val_' + key[len('real_'):] in rows[0]]
+    if not pairs:
         return
-    degrees = any(key.endswith('_deg') for key in real)
-    keys = [key for key in rows[0] if key.startswith(('val_', 'real_')) and key != 'val_loss'
-            and key.endswith('_deg') == degrees]
+    degrees = any(name.endswith('_deg') for name in pairs)
     steps = [r['step'] for r in rows]
-    plot_curves(Path(run_dir) / 'sim_to_real.png',
-                {key: (steps, [r[key] for r in rows]) for key in keys},
-                f'{Path(run_dir).name}: synthetic (val_) vs real (real_) frames',
+    series = {f'{side} {name}': (steps, [r[f'{prefix}{name}'] for r in rows])
+              for name in pairs if name.endswith('_deg') == degrees
+              for side, prefix in (('synthetic', 'val_'), ('real', 'real_'))}
+    plot_curves(Path(run_dir) / 'sim_to_real.png', series,
+                f'{Path(run_dir).name}: held-out renders vs real frames',
                 ylabel='degrees' if degrees else 'fraction')
