@@ -143,6 +143,10 @@ def test_training_cache_joins_folders_and_refuses_a_different_camera(tmp_path):
     _write_cache(tmp_path / 'c', second, other)
     with pytest.raises(InputError, match='objects, camera or sizes differ'):
         TrainingCache([tmp_path / 'a', tmp_path / 'c'])
+    (tmp_path / 'crops').mkdir()           # e.g. a Q-Net crop cache given by mistake
+    (tmp_path / 'crops' / 'meta.json').write_text(json.dumps({'kind': 'qnet_crops'}))
+    with pytest.raises(InputError, match='crops/meta.json is not a scene training cache'):
+        TrainingCache([tmp_path / 'a', tmp_path / 'crops'])
 
 
 def test_detector_targets_decode_to_the_boxes():
@@ -261,6 +265,18 @@ def test_train_cli_without_a_cache_is_a_clear_error(tmp_path, lmo_root, capsys):
                  '--run-dir', str(tmp_path / 'run'), '--steps', '1'])
     assert code == 2
     assert 'no training cache' in capsys.readouterr().err
+
+
+def test_train_detector_cli_joins_scene_caches_only(tmp_path, lmo_root, capsys):
+    _write_cache(tmp_path / 'scenes', _fake_cache(np.random.default_rng(6)))
+    (tmp_path / 'crops').mkdir()
+    (tmp_path / 'crops' / 'meta.json').write_text(json.dumps({'kind': 'qnet_crops'}))
+    code = main(['train', 'detector', '--dataset', str(lmo_root), '--cache',
+                 str(tmp_path / 'scenes'), '--extra-cache', str(tmp_path / 'crops'),
+                 '--run-dir', str(tmp_path / 'run'), '--steps', '1'])
+    assert code == 2
+    assert 'crops/meta.json is not a scene training cache' in capsys.readouterr().err
+    assert not (tmp_path / 'run').exists()
 
 
 def test_train_cli_refuses_zero_hypotheses(tmp_path, lmo_root, capsys):

@@ -77,6 +77,7 @@ def add_parser(subparsers):
         _common(stage_parser)
         _budget(stage_parser)
         stage_parser.set_defaults(func=func)
+    _extra_cache_option(sub.choices['detector'], 'scene')
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
     verifier = sub.add_parser('verifier', help="train the detector's second stage")
@@ -151,9 +152,7 @@ def _qnet_options(parser):
     parser.add_argument('--max-inplane-deg', type=float, default=None,
                         help='train only on crops rolled at most this much about the optical '
                              'axis (an upright-object prior; default: all)')
-    parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
-                        help='more crop caches to train on, with the same objects, camera, '
-                             'crop size and context as --cache')
+    _extra_cache_option(parser, 'crop')
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
@@ -171,12 +170,16 @@ def _verifier_options(parser):
                         help='crop side / longest box side (default %(default)s)')
     parser.add_argument('--candidates', type=int, default=3,
                         help='peaks per class re-scored at run time (default %(default)s)')
-    parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
-                        help='more scene caches to train on, with the same objects, camera '
-                             'and sizes as --cache')
+    _extra_cache_option(parser, 'scene')
     parser.add_argument('--real-val', action='store_true',
                         help="also measure the detector's recall on the dataset's real frames "
                              '(measured only, never trained on)')
+
+
+def _extra_cache_option(parser, kind):
+    parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
+                        help=f'more {kind} caches to train on, with the same objects, camera '
+                             f'and sizes as --cache')
 
 
 def _settings(settings, args):
@@ -190,13 +193,11 @@ def _load(args):
     from bbpose_ros.core.models import load_bop_models
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache, is_crop_cache
-    extra = getattr(args, 'extra_cache', ())
-    if extra and not is_crop_cache(args.cache):
-        raise InputError(f'--extra-cache needs a crop cache as --cache; {args.cache} is not')
+    folders = [args.cache, *getattr(args, 'extra_cache', ())]
     if is_crop_cache(args.cache):
-        cache = CropCache([args.cache, *extra], args.max_shards)
+        cache = CropCache(folders, args.max_shards)
     else:
-        cache = TrainingCache(args.cache, args.max_shards)
+        cache = TrainingCache(folders, args.max_shards)
     models = load_bop_models(args.dataset, args.objects or cache.objects)
     return cache, models
 

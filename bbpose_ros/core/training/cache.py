@@ -185,8 +185,12 @@ class TrainingCache:
                 raise InputError(f'no training cache in {cache_dir} (missing meta.json); '
                                  'build it with "bbpose train render"')
             meta = json.loads(meta_path.read_text())
-            layout = (meta['objects'], meta['camera'], meta['input_size'],
-                      meta['crop_context'])
+            try:
+                layout = (meta['objects'], meta['camera'], meta['input_size'],
+                          meta['crop_context'])
+            except KeyError as err:
+                raise InputError(f'{meta_path} is not a scene training cache (field {err} is '
+                                 'missing); build one with "bbpose train render"') from err
             if first is not None and layout != first:
                 raise InputError(f'training cache {cache_dir}: objects, camera or sizes differ '
                                  f'from those of {cache_dirs[0]}')
