@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.hypotheses import (box_misfit, farthest_points, HypothesisSelector,
-                                        log_softmax, RotationHypotheses)
+                                        RotationHypotheses)
 from bbpose_ros.core.pipeline import Detection, PosePipeline
 from bbpose_ros.core.rotations import rotation_error_deg
 
@@ -86,12 +86,6 @@ def test_farthest_points_spread_over_the_set(lmo_models):
     gaps = np.linalg.norm(hull[:, None] - chosen[None], axis=2).min(axis=1)
     assert gaps.max() < 0.2 * lmo_models['driller'].diameter
     np.testing.assert_array_equal(farthest_points(hull[:10], 64), hull[:10])
-
-
-def test_log_softmax_normalises_scores():
-    log_probs = log_softmax(np.array([[0.0, 1.0, 2.0], [1000.0, 1000.0, 0.0]]))
-    np.testing.assert_allclose(np.exp(log_probs).sum(axis=1), 1.0)
-    np.testing.assert_allclose(log_probs[1, :2], np.log(0.5))
 
 
 @pytest.mark.parametrize('weight', [-1.0, float('nan')])

@@ -27,12 +27,13 @@ import copy
 
 import cv2
 import numpy as np
+from scipy.special import log_softmax
 import torch
 from torch import nn
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT, HypothesisSelector,
-                                        log_softmax, RotationHypotheses)
+                                        RotationHypotheses)
 from bbpose_ros.core.inference import make_runner
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, FILL_VALUE
 from bbpose_ros.core.nets.crops import square_boxes
@@ -208,7 +209,7 @@ class QNetRotationEstimator:
         if not self.all_hypotheses:
             return rotations
         return RotationHypotheses(rotations.reshape(-1, count, 3, 3),
-                                  log_softmax(outputs[1].cpu().numpy().astype(float)))
+                                  log_softmax(outputs[1].cpu().numpy().astype(float), axis=1))
 
     def _blank_batch(self, count):
         size = self.config.crop_size

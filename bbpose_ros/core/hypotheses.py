@@ -74,12 +74,6 @@ def box_misfit(side_residuals_px, boxes_uv):
     return np.abs(side_residuals_px).max(axis=1) / np.maximum(sides, 1e-9)
 
 
-def log_softmax(scores):
-    """Log-softmax over the last axis of an array of scores (logits)."""
-    shifted = scores - scores.max(axis=-1, keepdims=True)
-    return shifted - np.log(np.exp(shifted).sum(axis=-1, keepdims=True))
-
-
 class HypothesisSelector:
     """
     Pick one rotation per detection from RotationHypotheses.
