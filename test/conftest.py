@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

@@ -21,9 +21,9 @@ import pytest
 
 from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.rotations import rotation_error_deg
+from bbpose_ros.core.geometry.rotations import rotation_error_deg
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

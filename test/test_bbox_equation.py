@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.bbox_equation import pad_point_sets, SELECTIONS, solve_translations
-from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, SELECTIONS, solve_translations
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 OBJECTS = ('ape', 'driller', 'glue', 'holepuncher')

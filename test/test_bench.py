@@ -21,7 +21,7 @@ import sys
 
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files
 
-from bbpose_ros.core.benchmark import ProcessSample, STAGES, summarize_graph
+from bbpose_ros.core.eval.benchmark import ProcessSample, STAGES, summarize_graph
 
 STATS = {'median_ms', 'p95_ms', 'max_ms'}
 

@@ -20,9 +20,9 @@ import shutil
 import numpy as np
 import pytest
 
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.data.models import load_bop_models, load_mesh
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.models import load_bop_models, load_mesh
 
 
 def test_reads_frames_ground_truth_and_intrinsics(lmo, lmo_frames):

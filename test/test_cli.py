@@ -20,8 +20,8 @@ from pathlib import Path
 import subprocess
 import sys
 
-from bbpose_ros.core.bop import BopDataset
-from bbpose_ros.core.evaluation import POSE_KEYS
+from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.eval.evaluation import POSE_KEYS
 
 
 def bbpose(*args, cwd=None):

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.render import mask_box_uv, projected_box_uv

@@ -19,10 +19,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.hypotheses import (box_misfit, farthest_points, HypothesisSelector,
-                                        RotationHypotheses)
-from bbpose_ros.core.pipeline import Detection, PosePipeline
-from bbpose_ros.core.rotations import rotation_error_deg
+from bbpose_ros.core.geometry.rotations import rotation_error_deg
+from bbpose_ros.core.pipeline.hypotheses import (box_misfit, farthest_points, HypothesisSelector,
+                                                 RotationHypotheses)
+from bbpose_ros.core.pipeline.pose_pipeline import Detection, PosePipeline
 
 # Decoys: the true rotation turned 90 deg about the model's x, y or z axis, or 180 about x.
 DECOY_TURNS = Rotation.from_rotvec(np.pi / 2 * np.eye(3)).as_matrix()

@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.estimators import BoxDetector, QNetRotationEstimator
-from bbpose_ros.core.inference import inference_network, make_runner
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.pipeline import Detection
+from bbpose_ros.core.pipeline.backends import inference_network, make_runner
+from bbpose_ros.core.pipeline.estimators import BoxDetector, QNetRotationEstimator
+from bbpose_ros.core.pipeline.pose_pipeline import Detection
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 RNG = np.random.default_rng(5)

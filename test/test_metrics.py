@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core import metrics
+from bbpose_ros.core.eval import metrics
 
 CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * 0.05
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])

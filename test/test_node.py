@@ -36,13 +36,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.core.estimators import load_pipeline
-from bbpose_ros.core.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
-from bbpose_ros.ros.bag_player import BagPlayer
+from bbpose_ros.cli.graph.player import BagPlayer
+from bbpose_ros.cli.graph.replay import NodeProcess
+from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.ros.conversions import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 from bbpose_ros.ros.params import LMO_OBJECTS
-from bbpose_ros.ros.replay import NodeProcess
 
 FRAMES = 4
 START_NS = 1_700_000_000 * 1_000_000_000

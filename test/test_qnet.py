@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.camera import CameraIntrinsics
-from bbpose_ros.core.estimators import QNetRotationEstimator
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
+                                                ray_rotation, rotation_error_deg)
 from bbpose_ros.core.nets.crops import box_centre_rays, extract_crops, square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import (dot_product_loss, multi_hypothesis_loss,
                                              QNormalization, symmetric_dot_product_loss)
-from bbpose_ros.core.pipeline import Detection
-from bbpose_ros.core.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
-                                       ray_rotation, rotation_error_deg)
+from bbpose_ros.core.pipeline.estimators import QNetRotationEstimator
+from bbpose_ros.core.pipeline.pose_pipeline import Detection
 from bbpose_ros.core.training.qnet_training import symmetry_rotations
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')

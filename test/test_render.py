@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import Draw, Lighting, mask_box_uv, MeshRenderer, \
     opengl_projection, projected_box_uv, RenderMesh
 from bbpose_ros.core.render.reference import render_depth, render_silhouette

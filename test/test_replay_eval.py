@@ -23,8 +23,8 @@ from rosbags.rosbag2 import Reader
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_params
 
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.core.estimators import load_pipeline
-from bbpose_ros.core.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.pipeline.estimators import load_pipeline
 
 FRAMES = 3
 

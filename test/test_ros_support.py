@@ -31,8 +31,8 @@ import torch
 
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.weights import DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS
-from bbpose_ros.core.weights import save_weights
+from bbpose_ros.core.pipeline.weights import DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS
+from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.ros.params import LMO_OBJECTS
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -28,8 +28,9 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline import Detection, PoseEstimate
-from bbpose_ros.core.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
+from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
@@ -126,12 +127,12 @@ def test_camera_info_k_or_p_and_bad_k():
     info = CameraInfo(width=640, height=480)
     info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
     info.p = [400.0, 0.0, 300.0, 0.0, 0.0, 400.0, 200.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    assert conversions.camera_from_info(info, False, 640, 480).fx == 500.0
-    assert conversions.camera_from_info(info, True, 640, 480).fx == 400.0
-    assert conversions.camera_from_info(info, False, 320, 240).fx == 250.0
+    assert intrinsics_from_camera_info(info, 640, 480, False).fx == 500.0
+    assert intrinsics_from_camera_info(info, 640, 480, True).fx == 400.0
+    assert intrinsics_from_camera_info(info, 320, 240, False).fx == 250.0
     info.k = [0.0] * 9
     with pytest.raises(InputError, match='field k'):
-        conversions.camera_from_info(info, False, 640, 480)
+        intrinsics_from_camera_info(info, 640, 480, False)
 
 
 def test_diagnostics_round_trip():

@@ -19,11 +19,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
 from bbpose_ros.core.render import mask_box_uv, projected_box_uv
 from bbpose_ros.core.render.reference import render_silhouette
-from bbpose_ros.core.rotations import egocentric_to_allocentric
 from bbpose_ros.core.synth import SynthConfig, SyntheticSample, SyntheticScenes
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.synth.torch_dataset import SyntheticSceneDataset

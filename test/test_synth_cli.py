@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from bbpose_ros.cli import synth
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth import SyntheticScenes
 

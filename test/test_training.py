@@ -21,13 +21,13 @@ import pytest
 import torch
 
 from bbpose_ros.cli.main import main
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
-from bbpose_ros.core.rotations import quat_wxyz_to_matrix
 from bbpose_ros.core.synth.placement import viewpoint_angles, viewpoint_rotation
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings

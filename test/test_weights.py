@@ -20,8 +20,8 @@ import torch
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
-                                     load_network, save_weights)
+from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
+                                              load_network, save_weights)
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 TRAINING = {'command': 'test', 'git_commit': 'abc', 'steps': 0}

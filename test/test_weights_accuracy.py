@@ -22,11 +22,11 @@ in the comments), so the test catches a broken or swapped weight file, not noise
 import numpy as np
 import pytest
 
-from bbpose_ros.core.detection_eval import evaluate_detections
-from bbpose_ros.core.estimators import load_pipeline
-from bbpose_ros.core.evaluation import evaluate
-from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.pipeline import FrameResult
+from bbpose_ros.core.eval.detection import evaluate_detections
+from bbpose_ros.core.eval.evaluation import evaluate
+from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+from bbpose_ros.core.pipeline.pose_pipeline import FrameResult
 
 FRAMES = 12
 

@@ -21,8 +21,9 @@ from pathlib import Path
 from rosbags.rosbag2 import Reader
 
 from bbpose_ros.bags import topics
+from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.image_encoding import decode_image, intrinsics_from_camera_info
+from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
 
 
 @dataclass
@@ -81,5 +82,5 @@ def read_bag_frames(path, image_topic=topics.IMAGE_TOPIC,
 def _frame(stamp, image, info, poses):
     rgb = decode_image(image.height, image.width, image.encoding, image.step, image.data)
     camera = None if info is None else intrinsics_from_camera_info(
-        info.k, info.p, info.width, info.height)
+        info, image.width, image.height)
     return BagFrame(stamp, image.header.frame_id, rgb, camera, dict(poses))

@@ -17,8 +17,9 @@
 import numpy as np
 from rosbags.typesys import get_typestore, Stores
 
-from bbpose_ros.core.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix, wxyz_to_xyzw
-from bbpose_ros.core.rotations import xyzw_to_wxyz
+from bbpose_ros.core.geometry.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
+                                                wxyz_to_xyzw)
+from bbpose_ros.core.geometry.rotations import xyzw_to_wxyz
 
 IMAGE_TOPIC = '/camera/image_raw'
 CAMERA_INFO_TOPIC = '/camera/camera_info'

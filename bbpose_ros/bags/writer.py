@@ -14,17 +14,16 @@
 
 """Write BOP frames into a rosbag2 (images, camera info and ground-truth poses)."""
 
-import os
 from pathlib import Path
-import shutil
 
 import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 from tqdm import tqdm
 
 from bbpose_ros.bags import topics
+from bbpose_ros.core.data.image_encoding import encode_rgb8
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.image_encoding import encode_rgb8
+from bbpose_ros.core.files import atomic_output
 
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
@@ -70,15 +69,9 @@ def write_bop_bag(frames, out_path, rate_hz=10.0, start_stamp_ns=1_000_000_000,
         raise InputError(f'output already exists: {out_path}')
     if not frames:
         raise InputError('no frames to write')
-    staging = out_path.with_name(f'.{out_path.name}.partial-{os.getpid()}')
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    try:
-        with Writer(staging / out_path.name, version=9, storage_plugin=STORAGE[storage]) as bag:
+    with atomic_output(out_path) as staging:
+        with Writer(staging, version=9, storage_plugin=STORAGE[storage]) as bag:
             _write_frames(bag, frames, rate_hz, start_stamp_ns, frame_id, min_visib, progress)
-        (staging / out_path.name).rename(out_path)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return len(frames)
 
 

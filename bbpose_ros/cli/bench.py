@@ -29,16 +29,16 @@ from std_msgs.msg import Header
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
-from bbpose_ros.cli.common import write_json_atomic
+from bbpose_ros.cli.graph.benchmark import camera_messages, run_graph
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
-from bbpose_ros.core.benchmark import benchmark_frames, RSS_SETTLE_S, STAGES
-from bbpose_ros.core.benchmark import summarize_graph
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.estimators import load_pipeline
-from bbpose_ros.core.models import load_bop_models
+from bbpose_ros.core.eval.benchmark import benchmark_frames, RSS_SETTLE_S, STAGES
+from bbpose_ros.core.eval.benchmark import summarize_graph
+from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.ros import conversions
-from bbpose_ros.ros.benchmark_graph import camera_messages, run_graph
 from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
 
 

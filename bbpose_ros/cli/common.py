@@ -12,16 +12,14 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Argument helpers and output writing shared by the subcommands."""
+"""Argument helpers shared by the subcommands."""
 
 import argparse
 from dataclasses import replace
-import json
-import math
 import os
 from pathlib import Path
 
-DEFAULT_DATASET = Path('../shared/datasets/lmo')
+from bbpose_ros.core.data.bop import DEFAULT_DATASET
 
 
 def add_dataset_argument(parser):
@@ -65,26 +63,3 @@ def add_frames_argument(parser):
     """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
     parser.add_argument('--max-frames', type=int, default=None,
                         help='use only the first N frames (default: all)')
-
-
-def json_safe(value):
-    """Replace NaN and infinities by None, recursively, so the JSON is standard."""
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def write_json_atomic(path, data):
-    """Write JSON to ``path`` through a temporary file, so no half file is ever left."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f'.{path.name}.partial-{os.getpid()}')
-    try:
-        tmp.write_text(json.dumps(json_safe(data), indent=2) + '\n')
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)

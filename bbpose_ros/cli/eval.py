@@ -17,12 +17,13 @@
 from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
-                                   add_objects_argument, write_json_atomic)
-from bbpose_ros.core.bop import BopDataset
-from bbpose_ros.core.detection_eval import format_detection_report, score_detections
-from bbpose_ros.core.evaluation import format_report, make_report, score_frames
-from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.pipeline import PosePipeline
+                                   add_objects_argument)
+from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.eval.detection import format_detection_report, score_detections
+from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
+from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
 
 def add_parser(subparsers):
@@ -64,7 +65,7 @@ def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     if boxes == 'gt' and rotation == 'gt':
         return PosePipeline(models)
-    from bbpose_ros.core.estimators import load_pipeline
+    from bbpose_ros.core.pipeline.estimators import load_pipeline
     return load_pipeline(models, detector_weights, qnet_weights,
                          box_consistency_weight=box_consistency_weight)
 
@@ -133,7 +134,7 @@ def run(args):
 
 def write_plots(folder, scores, per_object):
     """Write the evaluation charts into ``folder`` (matplotlib is imported only here)."""
-    from bbpose_ros.core import plots
+    from bbpose_ros.core.eval import plots
     plots.recall_curves(scores, folder / 'recall_curves.png')
     plots.object_bars(per_object, folder / 'objects.png')
     plots.errors_by_visibility(scores, folder / 'visibility.png')

@@ -20,7 +20,7 @@ import time
 from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.bags.writer import STORAGE, write_bop_bag
 from bbpose_ros.cli.common import add_dataset_argument, add_frames_argument
-from bbpose_ros.core.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset
 
 
 def add_parser(subparsers):

@@ -21,8 +21,8 @@ import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.ros.bag_player import BagPlayer
 
 ACK_TIMEOUT_S = 5.0   # reliable messages still in flight when the bag ends
 

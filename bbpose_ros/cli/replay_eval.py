@@ -15,7 +15,7 @@
 """
 ``bbpose replay-eval``: replay a bag through ``bbpose_node`` and score what it publishes.
 
-The node runs as a child process; the bag is played in lockstep (see ``ros.replay``), the
+The node runs as a child process; the bag is played in lockstep (see ``graph.replay``), the
 node's outputs are recorded into a results bag beside the JSON, and its poses are scored
 against the bag's ground truth with the scoring code of ``bbpose eval``. Ground-truth and
 estimated poses are matched through their boxes: the projection of the object's mesh at
@@ -32,19 +32,21 @@ from rclpy.signals import SignalHandlerOptions
 from tqdm import tqdm
 
 from bbpose_ros.bags.reader import read_bag_frames
-from bbpose_ros.cli.common import write_json_atomic
-from bbpose_ros.core import plots
-from bbpose_ros.core.bop import GroundTruthInstance
+from bbpose_ros.cli.graph.player import BagPlayer
+from bbpose_ros.cli.graph.replay import NodeProcess, Recorder, replay_lockstep
+from bbpose_ros.cli.graph.replay import use_large_image_profile, write_results_bag
+from bbpose_ros.core import viz
+from bbpose_ros.core.data.bop import GroundTruthInstance
+from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.evaluation import format_report, projected_box, score_frame
-from bbpose_ros.core.evaluation import summarize_objects, timing_summary
-from bbpose_ros.core.models import load_bop_models
-from bbpose_ros.core.pipeline import Detection, PoseEstimate
-from bbpose_ros.ros.bag_player import BagPlayer
+from bbpose_ros.core.eval import plots
+from bbpose_ros.core.eval.evaluation import format_report, projected_box, score_frame
+from bbpose_ros.core.eval.evaluation import summarize_objects
+from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.latency import timing_summary
+from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros.params import package_config_file, read_params_file
 from bbpose_ros.ros.params import resolve_dataset_dir
-from bbpose_ros.ros.replay import NodeProcess, Recorder, replay_lockstep
-from bbpose_ros.ros.replay import use_large_image_profile, write_results_bag
 
 DEFAULT_PARAMS = package_config_file('bbpose.yaml')
 OVERLAY_FRAMES = 4
@@ -134,9 +136,9 @@ def write_plots(folder, frames, recording, models, scores, per_object):
         frame = frames[index]
         truths = [(i.object_name, i.rotation, i.translation)
                   for i in ground_truth_instances(frame, models)]
-        image = plots.draw_comparison(frame.image_rgb, frame.camera, models, truths,
-                                      recording.poses.get(frame.stamp_ns, []))
-        plots.write_image(folder / f'overlay_{index:04d}.png', image)
+        image = viz.draw_comparison(frame.image_rgb, frame.camera, models, truths,
+                                    recording.poses.get(frame.stamp_ns, []))
+        viz.write_image(folder / f'overlay_{index:04d}.png', image)
 
 
 def record(args, objects, frame_count):

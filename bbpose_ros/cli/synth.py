@@ -23,16 +23,15 @@ written under a temporary name next to it and renamed at the end.
 
 from dataclasses import asdict
 from pathlib import Path
-import shutil
-import tempfile
 
 from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_inplane_argument, with_inplane_range
-from bbpose_ros.core.bop import read_json
-from bbpose_ros.core.camera import CameraIntrinsics
+from bbpose_ros.core.data.bop import read_json
+from bbpose_ros.core.data.models import load_bop_models, resolve_object_names
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.models import load_bop_models, resolve_object_names
+from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
 from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
     write_rgb_png
@@ -94,14 +93,10 @@ def run(args):
     config = with_inplane_range(SynthConfig(), args)
     scenes = SyntheticScenes({name: models[name] for name in targets}, camera, args.seed,
                              config, distractors)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
     try:
-        _write(scenes, models, staging, args, targets, distractors, config)
-        staging.rename(out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+        with atomic_output(out) as staging:
+            staging.mkdir()
+            _write(scenes, models, staging, args, targets, distractors, config)
     finally:
         scenes.close()
     print(f'wrote {args.count} images of {", ".join(targets)} to {out}')

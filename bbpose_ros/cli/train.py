@@ -190,7 +190,7 @@ def _settings(settings, args):
 
 
 def _load(args):
-    from bbpose_ros.core.models import load_bop_models
+    from bbpose_ros.core.data.models import load_bop_models
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache, is_crop_cache
     folders = [args.cache, *getattr(args, 'extra_cache', ())]
@@ -204,7 +204,7 @@ def _load(args):
 
 def run_render(args):
     """Render the training cache."""
-    from bbpose_ros.core.bop import BopDataset
+    from bbpose_ros.core.data.bop import BopDataset
     from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
     from bbpose_ros.core.training.cache import build_cache
     dataset = BopDataset(args.dataset)
@@ -219,7 +219,7 @@ def run_render(args):
 
 def run_render_crops(args):
     """Render the Q-Net crop cache."""
-    from bbpose_ros.core.bop import BopDataset
+    from bbpose_ros.core.data.bop import BopDataset
     from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
     from bbpose_ros.core.training.crop_cache import build_crop_cache
     dataset = BopDataset(args.dataset)
@@ -249,7 +249,7 @@ def run_verifier(args):
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.runs import train_verifier, with_verifier
     from bbpose_ros.core.training.verifier_training import VerifierTrainSettings
-    from bbpose_ros.core.weights import load_network
+    from bbpose_ros.core.pipeline.weights import load_network
     if args.candidates < 1:
         raise InputError(f'--candidates must be at least 1, got {args.candidates}')
     if args.crop_size < 8 or args.crop_size % 8:
@@ -265,7 +265,7 @@ def run_verifier(args):
                             args.candidates)
     real = None
     if args.real_val:
-        from bbpose_ros.core.bop import BopDataset
+        from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealDetections
         real = RealDetections(BopDataset(args.dataset).frames(), cascade.config.objects)
     train_verifier(cache, cascade, _settings(VerifierTrainSettings(), args), args.run_dir,
@@ -298,7 +298,7 @@ def run_qnet(args):
     cache, models, config, settings = _qnet_setup(args)
     real = None
     if args.real_val:
-        from bbpose_ros.core.bop import BopDataset
+        from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealCrops
         real = RealCrops(BopDataset(args.dataset).frames(), config.objects, models)
     train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
@@ -328,7 +328,7 @@ def _seconds(args):
 
 
 def _measured_sigma(path):
-    from bbpose_ros.core.weights import read_weights
+    from bbpose_ros.core.pipeline.weights import read_weights
     metadata, _ = read_weights(path, 'detector')
     sigma = metadata.get('training', {}).get('validation', {}).get('side_sigma')
     if not sigma:

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The ROS 2 adapter: ``bbpose_node`` and the graph-side tools of ``bbpose play`` / ``replay-eval``.
+The ROS 2 adapter: ``bbpose_node``, its parameters, message conversions and diagnostics.
 
 Everything here converts between messages and the ROS-free core types; the pose pipeline
 itself lives in ``bbpose_ros.core``.

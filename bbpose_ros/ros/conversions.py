@@ -19,65 +19,57 @@ Poses are x_cam = R x_model + t with t in metres in the image's optical frame; q
 in messages are in ROS order (x, y, z, w).
 """
 
-from builtin_interfaces.msg import Duration
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
 import numpy as np
+import numpy.typing as npt
 from sensor_msgs.msg import Image
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from bbpose_ros.core.image_encoding import decode_image, encode_rgb8
-from bbpose_ros.core.image_encoding import intrinsics_from_camera_info
-from bbpose_ros.core.models import BOX_EDGES
-from bbpose_ros.core.plots import object_color
-from bbpose_ros.core.rotations import matrix_to_quat_wxyz, wxyz_to_xyzw
+from bbpose_ros.core.data.image_encoding import decode_image, encode_rgb8
+from bbpose_ros.core.data.models import BOX_EDGES, ObjectModel
+from bbpose_ros.core.geometry.rotations import matrix_to_quat_wxyz, wxyz_to_xyzw
+from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
+from bbpose_ros.core.viz import object_color
 
 BOX_LINE_WIDTH_M = 0.003
 LABEL_HEIGHT_M = 0.02
 
 
-def stamp_to_ns(stamp):
+def stamp_to_ns(stamp: Time) -> int:
     """Nanoseconds of a builtin_interfaces/Time."""
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-def image_to_rgb(image):
+def image_to_rgb(image: Image) -> np.ndarray:
     """(H, W, 3) uint8 RGB array of a sensor_msgs/Image; InputError names a bad field."""
     return decode_image(image.height, image.width, image.encoding, image.step, image.data)
 
 
-def camera_from_info(info, rectified, width, height):
-    """
-    Make the CameraIntrinsics of a sensor_msgs/CameraInfo for a width x height image.
-
-    Rectified images use P[:3, :3], others K. When the image size differs from the
-    CameraInfo's (a resized stream), the intrinsics are scaled to the image.
-    """
-    camera = intrinsics_from_camera_info(info.k, info.p, info.width or width,
-                                         info.height or height, rectified)
-    if (camera.width, camera.height) != (width, height):
-        camera = camera.scaled(width, height)
-    return camera
-
-
-def rgb_to_image(header, image_rgb):
+def rgb_to_image(header: Header, image_rgb: npt.ArrayLike) -> Image:
     """sensor_msgs/Image (rgb8) of an (H, W, 3) uint8 array."""
     height, width, encoding, step, data = encode_rgb8(image_rgb)
     return Image(header=header, height=height, width=width, encoding=encoding,
                  is_bigendian=0, step=step, data=data.tobytes())
 
 
-def pose_to_message(header, rotation, translation_m):
+def pose_to_message(header: Header, rotation: npt.ArrayLike,
+                    translation_m: npt.ArrayLike) -> PoseStamped:
     """geometry_msgs/PoseStamped of x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
     return PoseStamped(header=header, pose=_pose(_quats_xyzw(rotation), translation_m))
 
 
-def poses_to_messages(poses):
+def poses_to_messages(poses: Sequence[PoseEstimate]) -> list[Pose]:
     """
     Make the geometry_msgs/Pose of each PoseEstimate of a frame (metres, ROS (x, y, z, w)).
 
-    All rotations go to quaternions in one batched call: one call costs ~60 us, eight
-    together ~80 us, and the node needs each pose twice (PoseStamped and marker).
+    All rotations go to quaternions in one batched call, which costs little more than a
+    single one, and the node needs each pose twice (PoseStamped and marker).
     """
     if not poses:
         return []
@@ -85,7 +77,8 @@ def poses_to_messages(poses):
     return [_pose(q_xyzw, pose.translation) for q_xyzw, pose in zip(quats, poses)]
 
 
-def frame_messages(header, poses, markers):
+def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: MarkerArrayBuilder
+                   ) -> tuple[list[tuple[str, PoseStamped]], MarkerArray]:
     """
     Make a frame's outputs: [(object name, PoseStamped)] and the MarkerArray of ``markers``.
 
@@ -113,13 +106,14 @@ class MarkerArrayBuilder:
 
     """
 
-    def __init__(self, models):
+    def __init__(self, models: Mapping[str, ObjectModel]) -> None:
         self._points = {name: [Point(x=float(x), y=float(y), z=float(z))
                                for x, y, z in model.box_corners[BOX_EDGES.reshape(-1)]]
                         for name, model in models.items()}
         self._colors = {name: _color(model.obj_id) for name, model in models.items()}
 
-    def __call__(self, header, poses, pose_msgs=None):
+    def __call__(self, header: Header, poses: Sequence[PoseEstimate],
+                 pose_msgs: Sequence[Pose] | None = None) -> MarkerArray:
         """
         Return the MarkerArray of a frame's poses, stamped with its header.
 

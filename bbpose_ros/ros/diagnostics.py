@@ -21,11 +21,13 @@ and ``node`` (image received -> results published), each as median and p95 over 
 """
 
 from collections import Counter, deque
+from collections.abc import Iterable, Mapping
 import threading
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from bbpose_ros.core.evaluation import timing_summary
+from bbpose_ros.core.latency import timing_summary
 
 COUNTERS = ('received', 'answered', 'superseded', 'unpaired', 'bad_image', 'bad_camera_info',
             'failed')
@@ -36,23 +38,23 @@ _SUFFIX = '_ms_'
 class NodeStats:
     """Thread-safe frame counters and a sliding window of per-frame latencies (ms)."""
 
-    def __init__(self, window=1000):
+    def __init__(self, window: int = 1000) -> None:
         self._lock = threading.Lock()
         self._counts = Counter()
         self._timings = deque(maxlen=window)
         self._dropped_reported = 0
 
-    def count(self, key):
+    def count(self, key: str) -> None:
         """Add one to a counter of COUNTERS."""
         with self._lock:
             self._counts[key] += 1
 
-    def add_timings(self, timings_ms):
+    def add_timings(self, timings_ms: Mapping[str, float]) -> None:
         """Record one answered frame's {stage: ms}."""
         with self._lock:
             self._timings.append(dict(timings_ms))
 
-    def status(self, name):
+    def status(self, name: str) -> DiagnosticStatus:
         """Make a DiagnosticStatus, WARN when frames were dropped since the previous one."""
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
@@ -70,14 +72,14 @@ class NodeStats:
                                 hardware_id='', values=values)
 
 
-def diagnostics_message(stamp, statuses):
+def diagnostics_message(stamp: Time, statuses: Iterable[DiagnosticStatus]) -> DiagnosticArray:
     """Make a DiagnosticArray of the statuses at a builtin_interfaces/Time."""
     message = DiagnosticArray(status=list(statuses))
     message.header.stamp = stamp
     return message
 
 
-def timings_from_status(status):
+def timings_from_status(status: DiagnosticStatus) -> dict[str, dict[str, float]]:
     """{stage: {'median', 'p95'}} ms read back from a status made by NodeStats.status."""
     timings = {}
     for item in status.values:
@@ -87,7 +89,7 @@ def timings_from_status(status):
     return timings
 
 
-def counts_from_status(status):
+def counts_from_status(status: DiagnosticStatus) -> dict[str, int]:
     """{counter: int} read back from a status made by NodeStats.status."""
     return {item.key[len('frames_'):]: int(item.value) for item in status.values
             if item.key.startswith('frames_')}

@@ -29,28 +29,34 @@ The subscription callbacks only decode and pair; a worker thread runs the pipeli
 newest pair, so frames arriving while it is busy replace each other instead of queueing.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import threading
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+import numpy as np
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
+from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.estimators import load_pipeline
-from bbpose_ros.core.models import load_bop_models
-from bbpose_ros.core.plots import draw_estimates
+from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
+from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, NODE_NAME
+from bbpose_ros.ros.params import declare_parameters, NODE_NAME, NodeConfig
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -62,12 +68,12 @@ WORKER_JOIN_TIMEOUT_S = 1.0
 class Frame:
     """A decoded image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt."""
 
-    header: object
-    image_rgb: object
+    header: Header
+    image_rgb: np.ndarray
     received_s: float
 
 
-def build_pipeline(config):
+def build_pipeline(config: NodeConfig) -> PosePipeline:
     """Build the PosePipeline of a NodeConfig: meshes from dataset_dir, learned stages."""
     try:
         models = load_bop_models(config.dataset_dir, list(config.objects))
@@ -96,7 +102,7 @@ class BBPoseNode(Node):
 
     """
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.config = declare_parameters(self)
         self.pipeline = build_pipeline(self.config)
@@ -122,7 +128,7 @@ class BBPoseNode(Node):
             f'{self._topic("camera_info")} ({self.config.qos.reliability.name.lower()}, '
             f'depth {self.config.qos.depth})')
 
-    def destroy_node(self):
+    def destroy_node(self) -> None:
         """Stop the worker (waiting at most WORKER_JOIN_TIMEOUT_S), then the node."""
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
@@ -153,8 +159,8 @@ class BBPoseNode(Node):
     def _hand_off(self, frame, info):
         height, width = frame.image_rgb.shape[:2]
         try:
-            camera = conversions.camera_from_info(
-                info, self.get_parameter('rectified').value, width, height)
+            camera = intrinsics_from_camera_info(
+                info, width, height, self.get_parameter('rectified').value)
         except InputError as err:
             self._drop('bad_camera_info', str(err),
                        f'image dropped (stamp {_stamp_text(frame.header)}): {err}')
@@ -232,7 +238,7 @@ def _stamp_text(header):
     return f'{header.stamp.sec}.{header.stamp.nanosec:09d}'
 
 
-def main(args=None):
+def main(args: Sequence[str] | None = None) -> int:
     """Run the node until SIGINT / SIGTERM; returns 0, or 1 when it cannot start."""
     rclpy.init(args=args)
     try:

@@ -22,6 +22,7 @@ slow pipeline never builds a backlog.
 
 from collections import deque
 import threading
+from typing import Any
 
 
 class StampPairer:
@@ -33,11 +34,12 @@ class StampPairer:
 
     """
 
-    def __init__(self, info_history=50):
+    def __init__(self, info_history: int = 50) -> None:
         self._infos = deque(maxlen=info_history)
         self._waiting = None
 
-    def add_image(self, stamp_ns, image, slop_s):
+    def add_image(self, stamp_ns: int, image: Any,
+                  slop_s: float) -> tuple[tuple[Any, Any] | None, Any | None]:
         """
         Offer an image; returns (pair or None, the image it displaced or None).
 
@@ -52,7 +54,7 @@ class StampPairer:
         self._waiting = (stamp_ns, image)
         return None, displaced
 
-    def add_info(self, stamp_ns, info, slop_s):
+    def add_info(self, stamp_ns: int, info: Any, slop_s: float) -> tuple[Any, Any] | None:
         """Store a CameraInfo; returns the (image, info) pair it completes, or None."""
         self._infos.append((stamp_ns, info))
         if self._waiting is None:
@@ -64,16 +66,16 @@ class StampPairer:
         return image, match
 
     @property
-    def waiting(self):
+    def waiting(self) -> Any | None:
         """Return the image waiting for a CameraInfo, or None."""
         return None if self._waiting is None else self._waiting[1]
 
-    def take_waiting(self):
+    def take_waiting(self) -> Any | None:
         """Remove and return the image waiting for a CameraInfo (None when there is none)."""
         waiting, self._waiting = self.waiting, None
         return waiting
 
-    def nearest_offset_s(self, stamp_ns):
+    def nearest_offset_s(self, stamp_ns: int) -> float | None:
         """Return |stamp - nearest CameraInfo stamp| in seconds, or None with no CameraInfo."""
         if not self._infos:
             return None
@@ -91,26 +93,26 @@ class StampPairer:
 class LatestSlot:
     """A one-item hand-off between threads: put replaces, take waits."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._item = None
         self._closed = False
         self._condition = threading.Condition()
 
-    def put(self, item):
+    def put(self, item: Any) -> Any | None:
         """Offer an item; returns the item it replaced (never processed) or None."""
         with self._condition:
             replaced, self._item = self._item, item
             self._condition.notify()
         return replaced
 
-    def take(self):
+    def take(self) -> Any | None:
         """Wait for an item and remove it; None once the slot is closed."""
         with self._condition:
             self._condition.wait_for(lambda: self._item is not None or self._closed)
             item, self._item = self._item, None
         return None if self._closed else item
 
-    def close(self):
+    def close(self) -> None:
         """Wake the taker for good (shutdown)."""
         with self._condition:
             self._closed = True

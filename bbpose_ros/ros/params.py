@@ -20,19 +20,26 @@ QoS); the others (``sync_slop``, ``rectified``, ``publish_debug_image``) are rea
 frame and may be set at run time. ``config/bbpose.yaml`` documents each one.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable
 from dataclasses import dataclass
 import os
 from pathlib import Path
+from typing import Any, TYPE_CHECKING
 
 from ament_index_python.packages import get_package_share_directory
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 import yaml
 
-from bbpose_ros.cli.common import DEFAULT_DATASET
+from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.inference import BACKENDS
+from bbpose_ros.core.pipeline.backends import BACKENDS
+from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
 
 NODE_NAME = 'bbpose_node'
 LMO_OBJECTS = ['ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher']
@@ -101,10 +108,10 @@ PARAMETERS = {
 class NodeConfig:
     """The read-only parameters, validated; paths are None where the shipped files apply."""
 
-    objects: tuple
+    objects: tuple[str, ...]
     dataset_dir: Path
-    detector_weights: Path
-    qnet_weights: Path
+    detector_weights: Path | None
+    qnet_weights: Path | None
     score_threshold: float
     max_instances: int
     box_consistency_weight: float
@@ -114,7 +121,7 @@ class NodeConfig:
     qos: QoSProfile
 
 
-def declare_parameters(node):
+def declare_parameters(node: Node) -> NodeConfig:
     """
     Declare every parameter on ``node`` and return the validated NodeConfig.
 
@@ -151,7 +158,7 @@ def declare_parameters(node):
                        reliability=RELIABILITY[value['qos_reliability']]))
 
 
-def resolve_dataset_dir(text):
+def resolve_dataset_dir(text: str) -> Path:
     """
     Return the dataset folder of parameter ``dataset_dir``.
 
@@ -173,7 +180,8 @@ def _weights_file(name, text):
     return path
 
 
-def read_params_file(path, overrides=(), node_name=NODE_NAME):
+def read_params_file(path: Path | str, overrides: Iterable[str] = (),
+                     node_name: str = NODE_NAME) -> dict[str, Any]:
     """
     Read the parameter values a node gets from a ROS 2 parameters file, as rclpy does.
 
@@ -199,7 +207,7 @@ def read_params_file(path, overrides=(), node_name=NODE_NAME):
     return values
 
 
-def package_config_file(name):
+def package_config_file(name: str) -> Path:
     """Return config/<name> of the source tree, else of the installed share/bbpose_ros."""
     source = Path(__file__).resolve().parents[2] / 'config' / name
     if source.is_file():

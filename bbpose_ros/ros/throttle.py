@@ -21,6 +21,7 @@ was wrong) has its own period: a repeated problem is logged once per period, a n
 once.
 """
 
+from collections.abc import Callable, Hashable
 import threading
 import time
 
@@ -35,13 +36,14 @@ class KeyedThrottle:
 
     """
 
-    def __init__(self, period_s=5.0, clock=time.monotonic):
+    def __init__(self, period_s: float = 5.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.period_s = period_s
         self._clock = clock
         self._last = {}
         self._lock = threading.Lock()
 
-    def allow(self, key):
+    def allow(self, key: Hashable) -> bool:
         """Return True (and record it) when no ``key`` message was allowed within the period."""
         now = self._clock()
         with self._lock:

@@ -27,27 +27,27 @@ Design, and why:
   peak cell's centre to the sides of the AMODAL box, in log space (scale-free L1). The
   heatmap peak sits at the amodal box centre, so a half-hidden object still gets its full
   box, which the Bounding Box Equation needs.
-* About 0.27 M parameters and ~0.15 GMAC: ~10 ms per frame on 2 CPU cores with
-  ``channels_last`` and ``torch.inference_mode`` (measured by ``bbpose train`` tooling and
-  test/test_detector.py within the 15 ms budget).
+* A few hundred thousand parameters with the default ``channels``, sized for the
+  detector's 15 ms budget on 2 CPU cores with ``channels_last`` and
+  ``torch.inference_mode`` (``bbpose bench`` checks the budget).
 * An optional second stage, as in MTCNN's cascade (``core.nets.verifier``): the
   ``candidates`` highest peaks of each class are re-scored by a small classifier on a crop
   of their box, which learns the false peaks the heatmap ranks high.
 """
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any, Self
 
 import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
 
+from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.verifier import CandidateVerifier
 
 HEATMAP_PRIOR = 0.05   # initial peak probability (CenterNet's focal-loss bias init)
-
-_MEAN = 0.5
-_STD = 0.25
 
 
 @dataclass(frozen=True)
@@ -69,17 +69,17 @@ class DetectorConfig:
 
     """
 
-    objects: tuple
-    input_size: tuple = (320, 240)
-    channels: tuple = (16, 32, 48, 96)
+    objects: tuple[str, ...]
+    input_size: tuple[int, int] = (320, 240)
+    channels: tuple[int, ...] = (16, 32, 48, 96)
     stride: int = 8
-    verifier_channels: tuple = ()
+    verifier_channels: tuple[int, ...] = ()
     verifier_crop_size: int = 32
     verifier_context: float = 1.2
     candidates: int = 3
     candidate_threshold: float = 0.02
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (tuples become lists)."""
         data = asdict(self)
         for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
@@ -87,7 +87,7 @@ class DetectorConfig:
         return data
 
     @classmethod
-    def from_dict(cls, data):
+    def from_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of ``to_dict``."""
         data = dict(data)
         for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
@@ -115,7 +115,7 @@ class CenterBoxNet(nn.Module):
     CandidateVerifier, run separately on crops) or None.
     """
 
-    def __init__(self, config):
+    def __init__(self, config: DetectorConfig) -> None:
         super().__init__()
         self.config = config
         c1, c2, c3, c4 = config.channels
@@ -136,9 +136,9 @@ class CenterBoxNet(nn.Module):
             self.verifier = CandidateVerifier(config.verifier_channels, len(config.objects),
                                               config.verifier_crop_size)
 
-    def forward(self, images):
+    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Heatmap logits and log box sides on the stride-8 grid."""
-        x = self.stage2(self.stage1((images - _MEAN) / _STD))
+        x = self.stage2(self.stage1(normalize_input(images)))
         fine = self.stage3(x)
         coarse = self.lateral(self.stage4(fine))
         up = F.interpolate(coarse, size=fine.shape[-2:], mode='nearest')
@@ -149,17 +149,18 @@ class CenterBoxNet(nn.Module):
 class PeakOutputs(nn.Module):
     """A CenterBoxNet whose outputs are its heatmap peaks (``peaks``), for a runner's graph."""
 
-    def __init__(self, network, count):
+    def __init__(self, network: CenterBoxNet, count: int) -> None:
         super().__init__()
         self.network = network
         self.count = count
 
-    def forward(self, images):
+    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``peaks`` of the network's outputs for (N, 3, H, W) images."""
         return peaks(*self.network(images), self.count)
 
 
-def peaks(heatmap_logits, box_log, count):
+def peaks(heatmap_logits: torch.Tensor, box_log: torch.Tensor,
+          count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """
     Find the ``count`` highest local maxima (3x3) of every class heatmap, with box sides.
 
@@ -185,7 +186,8 @@ def peaks(heatmap_logits, box_log, count):
     return scores, cells, sides
 
 
-def peak_boxes(scores, cells, sides, width, stride, score_threshold):
+def peak_boxes(scores: np.ndarray, cells: np.ndarray, sides: np.ndarray, width: int,
+               stride: int, score_threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Boxes of one image's peaks (numpy ``peaks`` outputs of that image) above a threshold.
 
@@ -214,7 +216,9 @@ def peak_boxes(scores, cells, sides, width, stride, score_threshold):
     return classes[keep], scores[keep], boxes
 
 
-def decode(heatmap_logits, box_log, stride, score_threshold, max_per_class):
+def decode(heatmap_logits: torch.Tensor, box_log: torch.Tensor, stride: int,
+           score_threshold: float,
+           max_per_class: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Peaks of the class heatmaps and their boxes, for one image (``peaks`` + ``peak_boxes``).
 

@@ -21,10 +21,23 @@ conversion inside the network, so a runner is fed the (N, H, W, 3) uint8 crops o
 they are and an exported ONNX graph does the conversion in its own kernels.
 """
 
+from typing import Any
+
+import torch
 from torch import nn
 
+# Every network of the package centres its 0..1 input on 0.5 and scales it by 1 / 0.25
+# (roughly unit variance for natural images), inside the network so exports carry it.
+INPUT_MEAN = 0.5
+INPUT_STD = 0.25
 
-def images_to_input(images_nhwc):
+
+def normalize_input(images: torch.Tensor) -> torch.Tensor:
+    """(N, 3, H, W) float RGB in 0..1 -> the centred, scaled input of the first layer."""
+    return (images - INPUT_MEAN) / INPUT_STD
+
+
+def images_to_input(images_nhwc: torch.Tensor) -> torch.Tensor:
     """(N, H, W, 3) uint8 RGB tensor -> (N, 3, H, W) float 0..1 with channels_last strides."""
     return images_nhwc.permute(0, 3, 1, 2).float().div(255.0)
 
@@ -32,10 +45,10 @@ def images_to_input(images_nhwc):
 class ImageInput(nn.Module):
     """``network`` fed (N, H, W, 3) uint8 images: ``forward(images, *rest)``."""
 
-    def __init__(self, network):
+    def __init__(self, network: nn.Module) -> None:
         super().__init__()
         self.network = network
 
-    def forward(self, images_nhwc, *rest):
+    def forward(self, images_nhwc: torch.Tensor, *rest: torch.Tensor) -> Any:
         """Run the wrapped network on uint8 images and its other inputs ``rest``."""
         return self.network(images_to_input(images_nhwc), *rest)

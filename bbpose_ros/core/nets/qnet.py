@@ -18,11 +18,9 @@ Q-Net: a small CNN that regresses one unit quaternion (wxyz) from a square objec
 The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling (stride 2),
 then fully connected layers, then the q-normalization layer. Batch normalisation after each
 convolution speeds up CPU training; it costs next to nothing at inference (it is folded into
-the convolution). Widths are kept small so that all the crops of a frame (up to 8 at 48x48)
-run within Q-Net's 2 ms budget on 2 CPU cores: the shipped (8, 16, 24, 32) with a stride-2
-first convolution does 1.6 M multiply-adds a crop, (8, 16, 32, 64) with the paper's stride
-2.6 M and (12, 24, 48, 64) 4.9 M; all three, trained by the same recipe, measure the same on
-real frames within a checkpoint's spread (README "Performance").
+the convolution). Widths (``QNetConfig.channels``, stored in each weight file) are kept
+small so that all the crops of a frame (up to 8 at 48x48) run within Q-Net's 2 ms budget on
+2 CPU cores.
 
 Options (``QNetConfig``), the paper's version being the default where it has one:
 
@@ -43,19 +41,18 @@ Options (``QNetConfig``), the paper's version being the default where it has one
   (Rupprecht et al., ICCV 2017; Manhardt et al., ICCV 2019).
 """
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any, Self
 
 import torch
 from torch import nn
 
+from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.quaternion import QNormalization
 
 ROTATION_TARGETS = ('egocentric', 'allocentric')
 SHARING_MODES = ('shared', 'per_object')
-
-# Fixed input normalisation of crops given as float RGB in 0..1.
-_MEAN = 0.5
-_STD = 0.25
 
 
 @dataclass(frozen=True)
@@ -79,10 +76,10 @@ class QNetConfig:
 
     """
 
-    objects: tuple
+    objects: tuple[str, ...]
     crop_size: int = 48
     context: float = 1.2
-    channels: tuple = (8, 16, 24, 32)
+    channels: tuple[int, ...] = (8, 16, 24, 32)
     first_stride: int = 1
     fc_size: int = 256
     rotation_target: str = 'egocentric'
@@ -91,7 +88,7 @@ class QNetConfig:
     dropout: float = 0.2
     hypotheses: int = 1
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.rotation_target not in ROTATION_TARGETS:
             raise ValueError(f'rotation_target must be one of {ROTATION_TARGETS}')
         if self.sharing not in SHARING_MODES:
@@ -104,7 +101,7 @@ class QNetConfig:
             raise ValueError(f'crop_size {self.crop_size} is not divisible by '
                              f'2^{len(self.channels)}')
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (tuples become lists)."""
         data = asdict(self)
         data['objects'] = list(self.objects)
@@ -112,7 +109,7 @@ class QNetConfig:
         return data
 
     @classmethod
-    def from_dict(cls, data):
+    def from_dict(cls, data: Mapping[str, Any]) -> Self:
         """Inverse of ``to_dict``."""
         data = dict(data)
         data['objects'] = tuple(data['objects'])
@@ -145,7 +142,7 @@ class QNet(nn.Module):
     ``config.q_normalization``).
     """
 
-    def __init__(self, config):
+    def __init__(self, config: QNetConfig) -> None:
         super().__init__()
         self.config = config
         count = len(config.objects)
@@ -167,7 +164,7 @@ class QNet(nn.Module):
                 if module.bias is not None:
                     nn.init.zeros_(module.bias)
 
-    def forward(self, crops, object_index):
+    def forward(self, crops: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """
         Quaternions (N, 4), wxyz, for crops (N, 3, S, S) of objects ``object_index`` (N,).
 
@@ -182,7 +179,8 @@ class QNet(nn.Module):
         best = raw[:, 4 * count:].argmax(dim=1, keepdim=True)
         return self.normalize(raw.gather(1, best * 4 + torch.arange(4, device=raw.device)))
 
-    def hypotheses(self, crops, object_index):
+    def hypotheses(self, crops: torch.Tensor,
+                   object_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """
         All hypotheses: quaternions (N, H, 4) wxyz and their scores (N, H) (logits).
 
@@ -197,7 +195,7 @@ class QNet(nn.Module):
 
     def _heads(self, crops, object_index):
         """Each crop's own head output (N, head_width), before q-normalization."""
-        x = crops.sub(_MEAN).div_(_STD)
+        x = normalize_input(crops)
         if len(self.trunks) == 1:
             features = self.trunks[0](x)
         else:
@@ -216,10 +214,11 @@ class QNet(nn.Module):
 class HypothesisOutputs(nn.Module):
     """A QNet whose outputs are all its hypotheses (``QNet.hypotheses``), for a runner's graph."""
 
-    def __init__(self, network):
+    def __init__(self, network: QNet) -> None:
         super().__init__()
         self.network = network
 
-    def forward(self, crops, object_index):
+    def forward(self, crops: torch.Tensor,
+                object_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Quaternions (N, H, 4) wxyz and scores (N, H) of (N, 3, S, S) crops."""
         return self.network.hypotheses(crops, object_index)

@@ -36,21 +36,22 @@ class QNormalization(nn.Module):
     A = ||Q|| (checked in test/test_qnet.py). ``eps`` only guards a zero vector.
     """
 
-    def __init__(self, eps=1e-8):
+    def __init__(self, eps: float = 1e-8) -> None:
         super().__init__()
         self.eps = eps
 
-    def forward(self, raw):
+    def forward(self, raw: torch.Tensor) -> torch.Tensor:
         """Map (..., 4) raw outputs Q to unit quaternions q."""
         return raw / raw.norm(dim=-1, keepdim=True).clamp_min(self.eps)
 
 
-def dot_product_loss(q_pred, q_true):
+def dot_product_loss(q_pred: torch.Tensor, q_true: torch.Tensor) -> torch.Tensor:
     """Per-sample Dot Product Loss (1 - q_pred . q_true) / 2 of (B, 4) tensors -> (B,)."""
     return 0.5 * (1.0 - (q_pred * q_true).sum(dim=-1))
 
 
-def symmetric_dot_product_loss(q_pred, q_candidates, valid):
+def symmetric_dot_product_loss(q_pred: torch.Tensor, q_candidates: torch.Tensor,
+                               valid: torch.Tensor) -> torch.Tensor:
     """
     Dot Product Loss against the best of several equivalent ground truths.
 
@@ -68,8 +69,9 @@ def symmetric_dot_product_loss(q_pred, q_candidates, valid):
     return losses.masked_fill(~valid, float('inf')).min(dim=1).values
 
 
-def multi_hypothesis_loss(q_hypotheses, scores, q_candidates, valid, relax=0.05,
-                          score_weight=0.1):
+def multi_hypothesis_loss(q_hypotheses: torch.Tensor, scores: torch.Tensor,
+                          q_candidates: torch.Tensor, valid: torch.Tensor, relax: float = 0.05,
+                          score_weight: float = 0.1) -> torch.Tensor:
     """
     Relaxed winner-takes-all loss of several hypotheses (Rupprecht et al., ICCV 2017).
 

@@ -25,11 +25,12 @@ and its box the corrected one. Trained on the heatmap network's candidates in re
 scenes, background included, it learns the negatives the first stage ranks high.
 """
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 
-_MEAN = 0.5
-_STD = 0.25
+from bbpose_ros.core.nets.images import normalize_input
 
 
 def _conv(cin, cout):
@@ -48,7 +49,7 @@ class CandidateVerifier(nn.Module):
     for the left, top, right and bottom sides of the amodal box.
     """
 
-    def __init__(self, channels, classes, crop_size):
+    def __init__(self, channels: Sequence[int], classes: int, crop_size: int) -> None:
         super().__init__()
         if crop_size % 8:
             raise ValueError(f'verifier crop size must be a multiple of 8, got {crop_size}')
@@ -60,12 +61,13 @@ class CandidateVerifier(nn.Module):
             nn.Linear(c4 * (crop_size // 8) ** 2, 128), nn.ReLU(inplace=True),
             nn.Linear(128, 1 + classes + 4))
 
-    def outputs(self, crops):
+    def outputs(self, crops: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(N, 1 + classes) class scores (column 0: background), (N, 4) side corrections."""
-        head = self.classify(self.features((crops - _MEAN) / _STD))
+        head = self.classify(self.features(normalize_input(crops)))
         return head[:, :-4], head[:, -4:]
 
-    def forward(self, crops, class_index):
+    def forward(self, crops: torch.Tensor,
+                class_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(N,) probability of each crop's class ``class_index`` (0-based), (N, 4) corrections."""
         logits, corrections = self.outputs(crops)
         probabilities = torch.softmax(logits, dim=1)

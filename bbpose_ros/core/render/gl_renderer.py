@@ -23,15 +23,19 @@ children get a RuntimeError instead. Start workers with the 'spawn' or 'forkserv
 method, or fork them before the parent renders.
 """
 
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 import math
 import os
+from typing import Any
 
 import moderngl
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import shaders
+from bbpose_ros.core.render.mesh import RenderMesh
 from bbpose_ros.core.render.projection import opengl_projection, projected_box_uv
 
 # The instance-id target is 8 bits wide and 0 is the background.
@@ -56,7 +60,7 @@ class Draw:
     mesh: str
     rotation: np.ndarray
     translation: np.ndarray
-    color_gain: tuple = (1.0, 1.0, 1.0)
+    color_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -72,7 +76,7 @@ class Lighting:
 
     """
 
-    direction: tuple = (0.0, 0.0, -1.0)
+    direction: tuple[float, float, float] = (0.0, 0.0, -1.0)
     ambient: float = 0.4
     diffuse: float = 0.6
 
@@ -95,8 +99,8 @@ class RenderResult:
 
     rgb: np.ndarray
     instance_ids: np.ndarray
-    full_masks: dict
-    full_pixel_counts: dict
+    full_masks: dict[int, np.ndarray]
+    full_pixel_counts: dict[int, int]
 
 
 class MeshRenderer:
@@ -109,7 +113,8 @@ class MeshRenderer:
     anti-aliasing. Not thread-safe: use one renderer per process or thread.
     """
 
-    def __init__(self, camera, meshes, near=0.01, far=20.0):
+    def __init__(self, camera: CameraIntrinsics, meshes: Mapping[str, RenderMesh],
+                 near: float = 0.01, far: float = 20.0) -> None:
         if not 0.0 < near < far:
             raise InputError(f'invalid depth range near={near}, far={far} (metres)')
         self.camera = camera
@@ -119,21 +124,23 @@ class MeshRenderer:
         self._gl = None
         self._pid = None
 
-    def __getstate__(self):
+    def __getstate__(self) -> dict[str, Any]:
         """Pickle without the GL state; the receiving process creates its own context."""
         state = self.__dict__.copy()
         state['_gl'] = None
         state['_pid'] = None
         return state
 
-    def close(self):
+    def close(self) -> None:
         """Release the GL context of this process (a later ``render`` makes a new one)."""
         if self._gl is not None and self._pid == os.getpid():
             self._gl.release()
         self._gl = None
         self._pid = None
 
-    def render(self, draws, lighting, full_mask_indices=(), camera=None):
+    def render(self, draws: Sequence[Draw], lighting: Lighting,
+               full_mask_indices: Iterable[int] = (),
+               camera: CameraIntrinsics | None = None) -> RenderResult:
         """
         Draw ``draws`` (a sequence of ``Draw``) in one image under ``lighting``.
 

@@ -15,11 +15,13 @@
 """A triangle mesh in the form the renderers draw: float32 arrays, colours and normals."""
 
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
+import numpy.typing as npt
 
+from bbpose_ros.core.data.models import convex_hull_points, ObjectModel
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.models import convex_hull_points
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,9 @@ class RenderMesh:
     hull_points: np.ndarray
 
     @classmethod
-    def from_arrays(cls, vertices, faces, colors_uint8, hull_points=None):
+    def from_arrays(cls, vertices: npt.ArrayLike, faces: npt.ArrayLike,
+                    colors_uint8: npt.ArrayLike, hull_points: npt.ArrayLike | None = None
+                    ) -> Self:
         """
         Build from (V, 3) vertices in metres, (F, 3) faces and (V, 3) uint8 RGB colours.
 
@@ -69,13 +73,13 @@ class RenderMesh:
                    hull_points=np.asarray(hull_points, dtype=np.float64))
 
     @classmethod
-    def from_object_model(cls, model):
-        """Build from a ``bbpose_ros.core.models.ObjectModel`` (reusing its hull)."""
+    def from_object_model(cls, model: ObjectModel) -> Self:
+        """Build from a ``bbpose_ros.core.data.models.ObjectModel`` (reusing its hull)."""
         return cls.from_arrays(model.vertices, model.faces, model.vertex_colors,
                                model.hull_points)
 
 
-def vertex_normals(vertices, faces):
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(V, 3) unit vertex normals: the area-weighted sum of the adjacent face normals."""
     corners = vertices[faces]
     face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])

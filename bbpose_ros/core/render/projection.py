@@ -21,11 +21,15 @@ Pixel coordinates are continuous and follow ``CameraIntrinsics``: the centre of 
 """
 
 import numpy as np
+import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 
-def opengl_projection(camera, near, far, origin=(0, 0), size=None):
+def opengl_projection(camera: CameraIntrinsics, near: float, far: float,
+                      origin: tuple[float, float] = (0, 0),
+                      size: tuple[int, int] | None = None) -> np.ndarray:
     """
     Build the (4, 4) OpenGL projection of an OpenCV camera, for a window onto its image.
 
@@ -47,12 +51,14 @@ def opengl_projection(camera, near, far, origin=(0, 0), size=None):
     ])
 
 
-def transform_points(points, rotation, translation):
+def transform_points(points: npt.ArrayLike, rotation: npt.ArrayLike,
+                     translation: npt.ArrayLike) -> np.ndarray:
     """Map (N, 3) model points to the camera frame: x_cam = R x + t (metres)."""
     return np.asarray(points, dtype=float) @ np.asarray(rotation, dtype=float).T + translation
 
 
-def projected_box_uv(camera, points, rotation, translation):
+def projected_box_uv(camera: CameraIntrinsics, points: npt.ArrayLike, rotation: npt.ArrayLike,
+                     translation: npt.ArrayLike) -> np.ndarray:
     """
     Compute the amodal box (4,) [u_min, v_min, u_max, v_max] of (N, 3) points at a pose.
 
@@ -67,7 +73,7 @@ def projected_box_uv(camera, points, rotation, translation):
     return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
 
 
-def mask_box_uv(mask):
+def mask_box_uv(mask: np.ndarray) -> np.ndarray | None:
     """
     Compute the box (4,) [u_min, v_min, u_max, v_max] of the set pixels of an (H, W) mask.
 

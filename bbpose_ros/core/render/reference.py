@@ -21,15 +21,18 @@ the projected triangle; depth is interpolated perspective-correctly (1/z linear 
 """
 
 import numpy as np
+import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render.projection import transform_points
 
 # Candidate pixels evaluated per chunk (bounds memory for large triangles).
 _CHUNK_PIXELS = 1 << 21
 
 
-def render_depth(camera, vertices, faces, rotation, translation):
+def render_depth(camera: CameraIntrinsics, vertices: npt.ArrayLike, faces: npt.ArrayLike,
+                 rotation: npt.ArrayLike, translation: npt.ArrayLike) -> np.ndarray:
     """
     Depth image (H, W) float64 of a mesh at a pose: z in metres, inf where uncovered.
 
@@ -63,7 +66,8 @@ def render_depth(camera, vertices, faces, rotation, translation):
     return depth.reshape(camera.height, camera.width)
 
 
-def render_silhouette(camera, vertices, faces, rotation, translation):
+def render_silhouette(camera: CameraIntrinsics, vertices: npt.ArrayLike, faces: npt.ArrayLike,
+                      rotation: npt.ArrayLike, translation: npt.ArrayLike) -> np.ndarray:
     """Silhouette (H, W) bool of a mesh at a pose (arguments as in ``render_depth``)."""
     return np.isfinite(render_depth(camera, vertices, faces, rotation, translation))
 

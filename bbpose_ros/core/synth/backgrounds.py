@@ -14,7 +14,9 @@
 
 """Background images: photographs or procedural patterns, plus random shapes."""
 
+from collections.abc import Collection, Iterable
 from pathlib import Path
+from typing import Any, Self
 
 import cv2
 import numpy as np
@@ -91,7 +93,7 @@ class PhotoBackgrounds:
 
     SUFFIXES = ('.jpg', '.jpeg', '.png', '.webp')
 
-    def __init__(self, paths, max_side=800):
+    def __init__(self, paths: Iterable[Path | str], max_side: int = 800) -> None:
         self.paths = sorted(str(p) for p in paths)
         if not self.paths:
             raise InputError('no background photographs given')
@@ -99,7 +101,7 @@ class PhotoBackgrounds:
         self._images = None
 
     @classmethod
-    def from_folders(cls, folders):
+    def from_folders(cls, folders: Collection[Path | str]) -> Self:
         """Collect every photograph under ``folders`` (recursively)."""
         paths = [p for folder in folders for p in Path(folder).rglob('*')
                  if p.suffix.lower() in cls.SUFFIXES]
@@ -107,13 +109,13 @@ class PhotoBackgrounds:
             raise InputError(f'no .jpg/.png/.webp images under {", ".join(map(str, folders))}')
         return cls(paths)
 
-    def __getstate__(self):
+    def __getstate__(self) -> dict[str, Any]:
         """Pickle the paths only; each process reads the images itself."""
         state = self.__dict__.copy()
         state['_images'] = None
         return state
 
-    def region(self, rng, height, width):
+    def region(self, rng: np.random.Generator, height: int, width: int) -> np.ndarray:
         """(height, width, 3) uint8 RGB: a random region of a random photograph."""
         if self._images is None:
             self._images = [self._read(path) for path in self.paths]
@@ -139,7 +141,9 @@ class PhotoBackgrounds:
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
-def random_background(rng, height, width, photos=None, photo_probability=0.7):
+def random_background(rng: np.random.Generator, height: int, width: int,
+                      photos: PhotoBackgrounds | None = None,
+                      photo_probability: float = 0.7) -> np.ndarray:
     """
     Make a random (height, width, 3) uint8 RGB background.
 

@@ -31,8 +31,8 @@ class SynthConfig:
     elevation in ``elevation_range_deg`` above the model's x-y plane (LineMod models stand on
     it, z up), any azimuth and an in-plane rotation (roll about the optical axis, 0 when the
     model's z axis points up in the image) in ``inplane_range_deg``: any by default, or e.g.
-    (-60, 60) for upright objects under a roughly upright camera, as in LM-O (90 % of its
-    instances within -54..33 deg). ``cluster_probability`` is the chance
+    (-60, 60) for upright objects under a roughly upright camera, as in LM-O, whose
+    instances are mostly upright. ``cluster_probability`` is the chance
     that a target is put next to an earlier one, ``occluder_probability`` the chance that a
     distractor is put in front of a target. Distractor shapes are ``shape_size_range``
     metres across; ``shape_count`` shapes are made per generator.
@@ -47,29 +47,29 @@ class SynthConfig:
     ``jpeg_probability``.
     """
 
-    distance_range: tuple = (0.35, 1.5)
-    elevation_range_deg: tuple = (-15.0, 90.0)
-    inplane_range_deg: tuple = (0.0, 360.0)
+    distance_range: tuple[float, float] = (0.35, 1.5)
+    elevation_range_deg: tuple[float, float] = (-15.0, 90.0)
+    inplane_range_deg: tuple[float, float] = (0.0, 360.0)
     frame_margin: float = 0.05
-    targets_per_image: tuple = (4, 8)
-    distractors_per_image: tuple = (1, 4)
+    targets_per_image: tuple[int, int] = (4, 8)
+    distractors_per_image: tuple[int, int] = (1, 4)
     cluster_probability: float = 0.15
     occluder_probability: float = 0.2
-    shape_size_range: tuple = (0.03, 0.15)
+    shape_size_range: tuple[float, float] = (0.03, 0.15)
     shape_count: int = 24
-    ambient_range: tuple = (0.45, 0.95)
-    diffuse_range: tuple = (0.1, 0.7)
-    color_gain_range: tuple = (0.85, 1.15)
-    brightness_range: tuple = (-25.0, 25.0)
-    contrast_range: tuple = (0.75, 1.25)
-    saturation_range: tuple = (0.7, 1.3)
+    ambient_range: tuple[float, float] = (0.45, 0.95)
+    diffuse_range: tuple[float, float] = (0.1, 0.7)
+    color_gain_range: tuple[float, float] = (0.85, 1.15)
+    brightness_range: tuple[float, float] = (-25.0, 25.0)
+    contrast_range: tuple[float, float] = (0.75, 1.25)
+    saturation_range: tuple[float, float] = (0.7, 1.3)
     blur_probability: float = 0.3
-    blur_sigma_range: tuple = (0.3, 1.5)
-    noise_sigma_range: tuple = (0.0, 6.0)
+    blur_sigma_range: tuple[float, float] = (0.3, 1.5)
+    noise_sigma_range: tuple[float, float] = (0.0, 6.0)
     jpeg_probability: float = 0.5
-    jpeg_quality_range: tuple = (40, 95)
+    jpeg_quality_range: tuple[int, int] = (40, 95)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if '_range' in name:
                 if len(value) != 2 or not value[0] <= value[1]:

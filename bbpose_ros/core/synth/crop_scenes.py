@@ -15,9 +15,9 @@
 """
 Object-centred synthetic crops for Q-Net: the crop the estimator would cut, rendered directly.
 
-Rendering whole 640x480 scenes gives a few thousand instances per object per hour on 2 CPU
-cores, far too few views of SO(3) for Q-Net (it memorises them: train error 29 deg, held-out
-55 deg on one object). A crop needs only a small image, so it renders ~10x faster: the
+Rendering whole 640x480 scenes on the CPU gives far too few views of SO(3) for Q-Net, which
+then memorises them instead of generalising. A crop needs only a small image, so it renders
+many times faster: the
 object is posed in the full camera exactly as in ``SyntheticScenes`` (pixel, distance,
 LM-O-like viewpoint), its amodal box is jittered as a detector would, and only the square
 crop around that box is rendered, through ``CameraIntrinsics.cropped``. Neighbouring meshes
@@ -27,21 +27,24 @@ native resolution (a 40-pixel box stays blurry after resizing), and parts outsid
 are grey, as ``extract_crops`` fills them.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.boxes import jitter_boxes
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.crops import FILL_VALUE, square_boxes
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
-from bbpose_ros.core.synth.backgrounds import random_background
+from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
 from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
     random_pixel
 from bbpose_ros.core.synth.shapes import random_shape
-from bbpose_ros.core.training.augment import jitter_boxes
 
 # Attempts at a sample with enough of the target visible before giving up.
 _ATTEMPTS = 50
@@ -92,16 +95,19 @@ class CropScenes:
         distractor_models: {name: ObjectModel} unlabelled meshes for clutter.
         crop_size: side S of the stored crops in pixels.
         context: crop side / longest side of the jittered box (Q-Net's ``context``).
-        box_sigma: per-side box jitter / box size (``augment.jitter_boxes``).
+        box_sigma: per-side box jitter / box size (``geometry.boxes.jitter_boxes``).
         min_visib: smallest visible fraction of the target kept.
         neighbours: (low, high) count of meshes placed around the target.
         backgrounds: PhotoBackgrounds, or None for procedural backgrounds only.
 
     """
 
-    def __init__(self, models, camera, seed=0, config=None, distractor_models=None,
-                 crop_size=64, context=1.2, box_sigma=0.05, min_visib=0.15,
-                 neighbours=(0, 4), backgrounds=None):
+    def __init__(self, models: Mapping[str, ObjectModel], camera: CameraIntrinsics,
+                 seed: int = 0, config: SynthConfig | None = None,
+                 distractor_models: Mapping[str, ObjectModel] | None = None,
+                 crop_size: int = 64, context: float = 1.2, box_sigma: float = 0.05,
+                 min_visib: float = 0.15, neighbours: tuple[int, int] = (0, 4),
+                 backgrounds: PhotoBackgrounds | None = None) -> None:
         if not models:
             raise InputError('crop scenes need at least one target object model')
         if int(seed) != seed or seed < 0:
@@ -128,11 +134,11 @@ class CropScenes:
         base = camera.cropped((0.0, 0.0, 1.0, 1.0), self.render_size)
         self.renderer = MeshRenderer(base, meshes)
 
-    def close(self):
+    def close(self) -> None:
         """Release the renderer's GL context in this process."""
         self.renderer.close()
 
-    def sample(self, index):
+    def sample(self, index: int) -> CropSample:
         """Render crop number ``index`` (a non-negative int) as a CropSample."""
         if int(index) != index or index < 0:
             raise InputError(f'sample index must be a non-negative integer, got {index}')

@@ -14,11 +14,19 @@
 
 """Camera effects on synthetic images: colour jitter, blur, sensor noise, JPEG artefacts."""
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
 
+if TYPE_CHECKING:
+    from bbpose_ros.core.synth.config import SynthConfig
 
-def jitter_colors(rng, image, config):
+
+def jitter_colors(rng: np.random.Generator, image: np.ndarray,
+                  config: SynthConfig) -> np.ndarray:
     """Random brightness, contrast and saturation of an (H, W, 3) uint8 RGB image."""
     image = image.astype(np.float32)
     gray = image.mean(axis=2, keepdims=True)
@@ -29,13 +37,13 @@ def jitter_colors(rng, image, config):
     return np.clip(image, 0, 255).astype(np.uint8)
 
 
-def add_noise(rng, image, sigma):
+def add_noise(rng: np.random.Generator, image: np.ndarray, sigma: float) -> np.ndarray:
     """Add Gaussian noise of ``sigma`` (in 0..255 units) to an (H, W, 3) uint8 image."""
     noise = rng.normal(0.0, sigma, image.shape).astype(np.float32)
     return np.clip(image.astype(np.float32) + noise, 0, 255).astype(np.uint8)
 
 
-def jpeg_roundtrip(image, quality):
+def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
     """Encode an (H, W, 3) uint8 RGB image as JPEG at ``quality`` (0-100) and decode it."""
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     ok, data = cv2.imencode('.jpg', bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
@@ -44,7 +52,8 @@ def jpeg_roundtrip(image, quality):
     return cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
-def apply_camera_effects(rng, image, config):
+def apply_camera_effects(rng: np.random.Generator, image: np.ndarray,
+                         config: SynthConfig) -> np.ndarray:
     """Apply the camera effects of a ``SynthConfig`` to an (H, W, 3) uint8 RGB image."""
     image = jitter_colors(rng, image, config)
     if rng.random() < config.blur_probability:

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Writing synthetic samples in the BOP format (readable by ``bbpose_ros.core.bop``).
+Writing synthetic samples in the BOP format (readable by ``bbpose_ros.core.data.bop``).
 
 Layout under ``root``: ``camera.json`` and ``<split>/<scene:06d>/`` with ``rgb/`` (PNG),
 ``mask_visib/`` (PNG per instance), ``scene_gt.json`` (rotation, translation in mm),
@@ -22,17 +22,21 @@ convention of ``bop_box_to_uv``; the exact continuous boxes are kept in the extr
 ``box_uv`` and ``visible_box_uv`` ([u_min, v_min, u_max, v_max], OpenCV pixel convention).
 """
 
+from collections.abc import Mapping, Sequence
 import json
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
-from bbpose_ros.core.models import MM_TO_M
+from bbpose_ros.core.data.models import MM_TO_M
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import mask_box_uv
+from bbpose_ros.core.synth.scenes import SyntheticSample
 
 
-def uv_to_bop_box(box_uv):
+def uv_to_bop_box(box_uv: Sequence[float] | np.ndarray) -> list[int]:
     """
     Convert to an integer BOP box [x, y, w, h] a continuous box [u_min, v_min, u_max, v_max].
 
@@ -43,18 +47,18 @@ def uv_to_bop_box(box_uv):
             max(round(float(box_uv[3])) - y - 1, 0)]
 
 
-def camera_json(camera):
+def camera_json(camera: CameraIntrinsics) -> dict[str, float]:
     """Return the BOP ``camera.json`` fields of a CameraIntrinsics."""
     return {'fx': camera.fx, 'fy': camera.fy, 'cx': camera.cx, 'cy': camera.cy,
             'width': camera.width, 'height': camera.height, 'depth_scale': 1.0}
 
 
-def write_json(path, data):
+def write_json(path: Path | str, data: Any) -> None:
     """Write ``data`` as indented JSON to ``path``."""
     Path(path).write_text(json.dumps(data, indent=1) + '\n')
 
 
-def write_rgb_png(path, image_rgb):
+def write_rgb_png(path: Path | str, image_rgb: np.ndarray) -> None:
     """Write an (H, W, 3) uint8 RGB image as PNG; a failed write is an OSError."""
     if not cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)):
         raise OSError(f'cannot write image {path}')
@@ -67,7 +71,8 @@ class BopSceneWriter:
     ``obj_ids`` maps object names to BOP object ids.
     """
 
-    def __init__(self, root, camera, obj_ids, split='train_synth', scene_id=0):
+    def __init__(self, root: Path | str, camera: CameraIntrinsics, obj_ids: Mapping[str, int],
+                 split: str = 'train_synth', scene_id: int = 0) -> None:
         self.root = Path(root)
         self.camera = camera
         self.obj_ids = dict(obj_ids)
@@ -76,7 +81,7 @@ class BopSceneWriter:
         (self.scene_dir / 'mask_visib').mkdir()
         self.scene_gt, self.scene_camera, self.scene_gt_info = {}, {}, {}
 
-    def add(self, image_id, sample):
+    def add(self, image_id: int, sample: SyntheticSample) -> None:
         """Write sample ``image_id`` (int)'s image and masks and record its ground truth."""
         write_rgb_png(self.scene_dir / 'rgb' / f'{image_id:06d}.png', sample.image_rgb)
         gts, infos = [], []
@@ -100,7 +105,7 @@ class BopSceneWriter:
         self.scene_camera[key] = {'cam_K': sample.camera.k.reshape(-1).tolist(),
                                   'depth_scale': 1.0}
 
-    def finish(self):
+    def finish(self) -> None:
         """Write ``camera.json`` and the scene's JSON files."""
         write_json(self.root / 'camera.json', camera_json(self.camera))
         write_json(self.scene_dir / 'scene_gt.json', self.scene_gt)
@@ -108,7 +113,7 @@ class BopSceneWriter:
         write_json(self.scene_dir / 'scene_camera.json', self.scene_camera)
 
 
-def draw_preview(sample):
+def draw_preview(sample: SyntheticSample) -> np.ndarray:
     """Draw the amodal boxes and labels on an (H, W, 3) uint8 RGB copy of the image."""
     image = sample.image_rgb.copy()
     for instance in sample.instances:

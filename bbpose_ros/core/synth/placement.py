@@ -21,12 +21,16 @@ the camera ray through a chosen pixel; ``allocentric_to_egocentric`` then gives 
 in the camera frame. Rotations map model to camera coordinates; translations are metres.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
-from bbpose_ros.core.rotations import allocentric_to_egocentric
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rotations import allocentric_to_egocentric
 
 
-def viewpoint_rotation(azimuth, elevation, inplane):
+def viewpoint_rotation(azimuth: float, elevation: float, inplane: float) -> np.ndarray:
     """
     (3, 3) allocentric rotation of a camera looking at the model origin.
 
@@ -40,7 +44,7 @@ def viewpoint_rotation(azimuth, elevation, inplane):
     return roll @ _look_at(-position[None])[0]
 
 
-def viewpoint_angles(rotations_allo):
+def viewpoint_angles(rotations_allo: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Inverse of ``viewpoint_rotation``: (azimuth, elevation, inplane), each (N,), radians.
 
@@ -72,7 +76,9 @@ def _look_at(z_axes):
     return np.stack([x_axes, np.cross(z_axes, x_axes), z_axes], axis=1)
 
 
-def random_allocentric_rotation(rng, elevation_range_deg, inplane_range_deg=(0.0, 360.0)):
+def random_allocentric_rotation(rng: np.random.Generator, elevation_range_deg: Sequence[float],
+                                inplane_range_deg: Sequence[float] = (0.0, 360.0)
+                                ) -> np.ndarray:
     """
     (3, 3) rotation from a random viewpoint.
 
@@ -85,7 +91,8 @@ def random_allocentric_rotation(rng, elevation_range_deg, inplane_range_deg=(0.0
                               rng.uniform(*np.radians(inplane_range_deg)))
 
 
-def pose_at_pixel(camera, uv, distance, rotation_allo):
+def pose_at_pixel(camera: CameraIntrinsics, uv: npt.ArrayLike, distance: float,
+                  rotation_allo: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """
     Return the egocentric pose (R (3, 3), t (3,)) of an object seen through a pixel.
 
@@ -98,7 +105,8 @@ def pose_at_pixel(camera, uv, distance, rotation_allo):
     return rotation, distance * ray
 
 
-def random_pixel(rng, camera, margin):
+def random_pixel(rng: np.random.Generator, camera: CameraIntrinsics,
+                 margin: float) -> np.ndarray:
     """(2,) pixel uniform over the image grown by ``margin`` x its size on every side."""
     return np.array([rng.uniform(-0.5 - margin * camera.width,
                                  camera.width - 0.5 + margin * camera.width),

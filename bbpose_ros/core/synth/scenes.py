@@ -21,13 +21,16 @@ Sample ``index`` of seed ``seed`` is always the same image: its random generator
 with (seed, index) only, so samples can be drawn in any order, by any number of workers.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
-from bbpose_ros.core.synth.backgrounds import random_background
+from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
 from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
@@ -81,8 +84,8 @@ class SyntheticSample:
     """
 
     image_rgb: np.ndarray
-    camera: object
-    instances: tuple
+    camera: CameraIntrinsics
+    instances: tuple[SynthInstance, ...]
 
 
 @dataclass(frozen=True)
@@ -108,8 +111,10 @@ class SyntheticScenes:
     process that draws the first sample, so instances may be passed to worker processes.
     """
 
-    def __init__(self, models, camera, seed=0, config=None, distractor_models=None,
-                 backgrounds=None):
+    def __init__(self, models: Mapping[str, ObjectModel], camera: CameraIntrinsics,
+                 seed: int = 0, config: SynthConfig | None = None,
+                 distractor_models: Mapping[str, ObjectModel] | None = None,
+                 backgrounds: PhotoBackgrounds | None = None) -> None:
         if not models:
             raise InputError('synthetic scenes need at least one target object model')
         distractor_models = dict(distractor_models or {})
@@ -137,11 +142,11 @@ class SyntheticScenes:
         self.hulls = {key: mesh.hull_points for key, mesh in meshes.items()}
         self.renderer = MeshRenderer(camera, meshes)
 
-    def close(self):
+    def close(self) -> None:
         """Release the renderer's GL context in this process."""
         self.renderer.close()
 
-    def sample(self, index):
+    def sample(self, index: int) -> SyntheticSample:
         """Render sample number ``index`` (a non-negative int) as a SyntheticSample."""
         if int(index) != index or index < 0:
             raise InputError(f'sample index must be a non-negative integer, got {index}')

@@ -14,6 +14,8 @@
 
 """Random coloured primitive meshes (boxes, cylinders, ellipsoids...) used as distractors."""
 
+from collections.abc import Sequence
+
 import numpy as np
 import trimesh
 
@@ -59,7 +61,7 @@ def _colors(rng, vertices):
     return np.clip(colors, 0, 255).astype(np.uint8)
 
 
-def random_shape(rng, size_range):
+def random_shape(rng: np.random.Generator, size_range: Sequence[float]) -> RenderMesh:
     """Make a random primitive ``RenderMesh``, ``size_range`` (low, high) metres across."""
     mesh = _primitive(rng, rng.uniform(*size_range))
     vertices = np.asarray(mesh.vertices, dtype=float)

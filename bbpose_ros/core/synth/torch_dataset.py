@@ -14,7 +14,15 @@
 
 """A ``torch.utils.data.Dataset`` of synthetic scenes, indexed by sample id."""
 
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TYPE_CHECKING
+
 import torch.utils.data
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.synth.scenes import SyntheticSample, SyntheticScenes
 
 
 class SyntheticSceneDataset(torch.utils.data.Dataset):
@@ -30,16 +38,17 @@ class SyntheticSceneDataset(torch.utils.data.Dataset):
     ``collate_fn=list`` or a ``transform`` that returns tensors (e.g. object crops).
     """
 
-    def __init__(self, scenes, length, transform=None):
+    def __init__(self, scenes: SyntheticScenes, length: int,
+                 transform: Callable[[SyntheticSample], Any] | None = None) -> None:
         self.scenes = scenes
         self.length = int(length)
         self.transform = transform
 
-    def __len__(self):
+    def __len__(self) -> int:
         """Return the number of samples."""
         return self.length
 
-    def __getitem__(self, index):
+    def __getitem__(self, index: int) -> Any:
         """Sample ``index`` (0 <= index < length), transformed when a transform is set."""
         if not 0 <= index < self.length:
             raise IndexError(f'sample index {index} out of range 0..{self.length - 1}')

@@ -12,13 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Online augmentation of uint8 training images and of 2D boxes."""
+"""Online photometric augmentation of training image batches."""
 
-import numpy as np
 import torch
 
 
-def photometric(images, generator, strength=1.0):
+def photometric(images: torch.Tensor, generator: torch.Generator,
+                strength: float = 1.0) -> torch.Tensor:
     """
     Random per-image brightness, contrast, colour gains and noise on a float batch.
 
@@ -41,18 +41,3 @@ def photometric(images, generator, strength=1.0):
     sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.03 * strength
     images.add_(torch.randn(images.shape, generator=generator) * sigma)
     return images.clamp_(0.0, 1.0)
-
-
-def jitter_boxes(boxes_uv, rng, side_sigma):
-    """
-    Move each side of (N, 4) boxes by N(0, side_sigma) times the box's width or height.
-
-    This models a detector's amodal box errors: independent side errors give both centre
-    shifts and size errors. Returns (N, 4) boxes, never narrower than 2 px.
-    """
-    boxes = np.asarray(boxes_uv, dtype=float)
-    size = np.concatenate([boxes[:, 2:] - boxes[:, :2]] * 2, axis=1)
-    jittered = boxes + rng.normal(0.0, 1.0, boxes.shape) * side_sigma * size
-    centre = (jittered[:, :2] + jittered[:, 2:]) / 2
-    half = np.maximum((jittered[:, 2:] - jittered[:, :2]) / 2, 1.0)
-    return np.concatenate([centre - half, centre + half], axis=1)

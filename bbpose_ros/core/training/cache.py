@@ -15,7 +15,7 @@
 """
 A rendered training set on disk: synthetic scenes turned into detector inputs and crops.
 
-Rendering on 2 CPU cores (~10 scenes/s) is far slower than training, so scenes are rendered
+Rendering on the CPU is far slower than training, so scenes are rendered
 once, in shards of ``SHARD_SIZE``, and reused for many epochs with online augmentation. A
 shard ``shard_NNNNN.npz`` holds, for its scenes:
 
@@ -30,18 +30,27 @@ shard ``shard_NNNNN.npz`` holds, for its scenes:
 so an interrupted build resumes where it stopped.
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
 import json
 import multiprocessing
 from pathlib import Path
+from typing import Any, TYPE_CHECKING
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.geometry.boxes import jitter_boxes
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
-from bbpose_ros.core.training.augment import jitter_boxes
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.synth.crop_scenes import CropScenes
+    from bbpose_ros.core.synth.scenes import SyntheticScenes
 
 SHARD_SIZE = 250
 CROP_SIZE = 128
@@ -76,7 +85,8 @@ def _render(index):
     return small, records
 
 
-def build_cache(scenes, cache_dir, count, input_size, workers=2, progress=True):
+def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
+                input_size: Sequence[int], workers: int = 2, progress: bool = True) -> None:
     """
     Render ``count`` scenes of a SyntheticScenes into ``cache_dir`` (resumable).
 
@@ -103,8 +113,10 @@ def build_cache(scenes, cache_dir, count, input_size, workers=2, progress=True):
                   (scenes, tuple(input_size)), _render, _write_shard, 'scene', workers, progress)
 
 
-def render_shards(cache_dir, meta, count, shard_size, init_worker, init_args, render,
-                  write_shard, unit, workers, progress):
+def render_shards(cache_dir: Path, meta: Mapping[str, Any], count: int, shard_size: int,
+                  init_worker: Callable[..., None], init_args: tuple[Any, ...],
+                  render: Callable[[int], Any], write_shard: Callable[[Path, list[Any]], None],
+                  unit: str, workers: int, progress: bool) -> None:
     """
     Render ``count`` items into shard files of ``cache_dir`` in worker processes (resumable).
 
@@ -134,7 +146,7 @@ def render_shards(cache_dir, meta, count, shard_size, init_worker, init_args, re
             write_shard(_shard_path(cache_dir, shard), results)
 
 
-def photo_count(scenes):
+def photo_count(scenes: SyntheticScenes | CropScenes) -> int:
     """Count the background photographs of a scene source (0: procedural only)."""
     return 0 if scenes.backgrounds is None else len(scenes.backgrounds.paths)
 
@@ -152,9 +164,8 @@ def _write_shard(path, results):
     arrays['scene'] = np.concatenate([np.full(len(r['object']), k) for k, r in records])
     for key in ('box_uv', 'visib', 'rotation', 'translation', 'square'):
         arrays[key] = arrays[key].astype(np.float32)
-    tmp = path.with_name(path.stem + '.partial.npz')
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_output(path) as tmp, open(tmp, 'wb') as stream:
+        np.savez(stream, **arrays)
 
 
 class TrainingCache:
@@ -175,7 +186,8 @@ class TrainingCache:
 
     """
 
-    def __init__(self, cache_dirs, max_shards=None):
+    def __init__(self, cache_dirs: Path | str | Sequence[Path | str],
+                 max_shards: int | None = None) -> None:
         if isinstance(cache_dirs, (str, Path)):
             cache_dirs = [cache_dirs]
         paths, first = [], None
@@ -212,11 +224,12 @@ class TrainingCache:
             setattr(self, key, np.concatenate([p[key] for p in parts]))
         self.shards = len(paths)
 
-    def held_out(self, fraction):
+    def held_out(self, fraction: float) -> np.ndarray:
         """(m,) bool: instances of the last ``fraction`` of the scenes (validation)."""
         return self.scene >= int(len(self.images) * (1 - fraction))
 
-    def input_crops(self, ids, rng, box_sigma, size, context):
+    def input_crops(self, ids: np.ndarray, rng: np.random.Generator, box_sigma: float,
+                    size: int, context: float) -> tuple[np.ndarray, np.ndarray]:
         """
         Q-Net inputs of instances ``ids``: their boxes jittered, cut as the estimator cuts.
 

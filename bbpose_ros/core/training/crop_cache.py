@@ -22,16 +22,24 @@ jittered box the crop is centred on (full-frame continuous pixels), ``visib`` (n
 ``meta.json`` records objects, camera, seed, crop size, context and box jitter.
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
 from functools import partial
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
-from bbpose_ros.core.camera import CameraIntrinsics
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.training.cache import photo_count, render_shards
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.synth.crop_scenes import CropScenes
 
 SHARD_SIZE = 2000
 
@@ -56,13 +64,12 @@ def _write_shard(names, path, samples):
         'rotation': np.stack([s.rotation for s in samples]).astype(np.float32),
         'translation': np.stack([s.translation for s in samples]).astype(np.float32),
     }
-    tmp = path.with_name(path.stem + '.partial.npz')
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_output(path) as tmp, open(tmp, 'wb') as stream:
+        np.savez(stream, **arrays)
 
 
-def build_crop_cache(scenes, cache_dir, count, workers=2, progress=True,
-                     shard_size=SHARD_SIZE):
+def build_crop_cache(scenes: CropScenes, cache_dir: Path | str, count: int, workers: int = 2,
+                     progress: bool = True, shard_size: int = SHARD_SIZE) -> None:
     """
     Render ``count`` crops of a CropScenes into ``cache_dir`` (resumable, whole shards).
 
@@ -101,7 +108,7 @@ def _read_meta(cache_dir):
     return meta
 
 
-def is_crop_cache(cache_dir):
+def is_crop_cache(cache_dir: Path | str) -> bool:
     """Tell whether ``cache_dir`` holds a crop cache (rather than a scene cache)."""
     meta_path = Path(cache_dir) / 'meta.json'
     return meta_path.is_file() and json.loads(meta_path.read_text()).get('kind') == 'qnet_crops'
@@ -126,7 +133,8 @@ class CropCache:
 
     SHARED_META = ('objects', 'camera', 'crop_size', 'context')
 
-    def __init__(self, cache_dirs, max_shards=None):
+    def __init__(self, cache_dirs: Path | str | Sequence[Path | str],
+                 max_shards: int | None = None) -> None:
         dirs = [Path(cache_dirs)] if isinstance(cache_dirs, (str, Path)) else \
             [Path(d) for d in cache_dirs]
         metas = [_read_meta(d) for d in dirs]
@@ -152,7 +160,7 @@ class CropCache:
         self.folder = np.concatenate(folders)
         self.shards = len(parts)
 
-    def held_out(self, fraction):
+    def held_out(self, fraction: float) -> np.ndarray:
         """(m,) bool: the last ``fraction`` of each folder's crops (validation)."""
         held = np.zeros(len(self.visib), dtype=bool)
         for k in np.unique(self.folder):
@@ -160,7 +168,9 @@ class CropCache:
             held[ids[int(len(ids) * (1 - fraction)):]] = True
         return held
 
-    def input_crops(self, ids, rng, box_sigma, size, context):
+    def input_crops(self, ids: np.ndarray, rng: np.random.Generator | None,
+                    box_sigma: float | None, size: int,
+                    context: float) -> tuple[np.ndarray, np.ndarray]:
         """
         Return stored crops ``ids`` resized to ``size`` and the (n, 4) boxes of their centres.
 

@@ -21,21 +21,25 @@ the log distances from each cell near the centre to the four amodal box sides. L
 CenterNet's penalty-reduced focal loss on the heatmap, L1 on the log sides weighted by the
 Gaussian, both per instance. Training steps see random ``train_crop`` windows (width,
 height; multiples of 16, offsets on the stride-8 grid) of the cached inputs: the network is
-fully convolutional, and a window costs a third of the frame. Validation on whole held-out
-scenes: recall at IoU 0.5 and the box side errors (per-side error / box size) that Q-Net's
-training jitter should match.
+fully convolutional, and a window costs only its share of the frame. Validation on whole
+held-out scenes: recall at IoU 0.5 and the box side errors (per-side error / box size) that
+Q-Net's training jitter should match.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import torch
 import torch.nn.functional as F
 
-from bbpose_ros.core.evaluation import box_iou
-from bbpose_ros.core.nets.detector import decode
+from bbpose_ros.core.geometry.boxes import box_iou
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.cache import TrainingCache
 
 
 @dataclass
@@ -49,16 +53,17 @@ class DetectorTrainSettings:
     box_weight: float = 1.0
     val_fraction: float = 0.05
     augment: float = 1.0
-    train_crop: tuple = (192, 160)
+    train_crop: tuple[int, int] = (192, 160)
 
 
-def detector_classes(config, cache):
+def detector_classes(config: DetectorConfig, cache: TrainingCache) -> np.ndarray:
     """(K,) the detector's class index of each cache object index, -1 where it has none."""
     return np.array([config.objects.index(n) if n in config.objects else -1
                      for n in cache.objects])
 
 
-def to_input_pixels(boxes_uv, config, camera):
+def to_input_pixels(boxes_uv: npt.ArrayLike, config: DetectorConfig,
+                    camera: CameraIntrinsics) -> np.ndarray:
     """(M, 4) full-frame continuous-pixel boxes -> the network input's (``input_size``)."""
     scale = np.array([config.input_size[0] / camera.width,
                       config.input_size[1] / camera.height] * 2)
@@ -68,7 +73,8 @@ def to_input_pixels(boxes_uv, config, camera):
 class DetectorBatches:
     """Draws detector batches (images, heatmap, sides, side weights) from a TrainingCache."""
 
-    def __init__(self, cache, config, settings, seed):
+    def __init__(self, cache: TrainingCache, config: DetectorConfig,
+                 settings: DetectorTrainSettings, seed: int) -> None:
         self.cache, self.config, self.settings = cache, config, settings
         if tuple(cache.input_size) != tuple(config.input_size):
             raise ValueError(f'cache input size {cache.input_size} != {config.input_size}')
@@ -83,16 +89,17 @@ class DetectorBatches:
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
 
-    def input_boxes(self, ids):
+    def input_boxes(self, ids: np.ndarray) -> np.ndarray:
         """(M, 4) amodal boxes of instances ``ids`` in network-input continuous pixels."""
         return to_input_pixels(self.cache.box_uv[ids], self.config, self.cache.camera)
 
-    def train_batch(self):
+    def train_batch(self) -> tuple[torch.Tensor, ...]:
         """Images (B, 3, H, W) float, heatmap (B, C, h, w), sides (B, 4, h, w), weight."""
         scenes = self.rng.choice(self.train_scenes, self.settings.batch)
         return self.make(scenes, self.settings.augment, self.settings.train_crop)
 
-    def make(self, scenes, augment, window=None):
+    def make(self, scenes: Sequence[int] | np.ndarray, augment: float,
+             window: tuple[int, int] | None = None) -> tuple[torch.Tensor, ...]:
         """Build the batch of the cached scenes ``scenes``, cut to ``window`` (w, h) if set."""
         full_w, full_h = self.config.input_size
         width, height = window or (full_w, full_h)
@@ -143,7 +150,7 @@ class DetectorBatches:
         return heat, sides, weight
 
 
-def focal_loss(logits, target):
+def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Compute CenterNet's penalty-reduced focal loss (alpha 2, beta 4) per peak."""
     prob = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     positive = target.eq(1.0)
@@ -152,7 +159,8 @@ def focal_loss(logits, target):
     return (pos_loss.sum() + neg_loss.sum()) / positive.sum().clamp_min(1)
 
 
-def detector_loss(network, batch, box_weight):
+def detector_loss(network: CenterBoxNet, batch: Sequence[torch.Tensor],
+                  box_weight: float) -> torch.Tensor:
     """Heatmap focal loss + weighted L1 on the log box sides, for one batch."""
     images, heat, sides, weight = batch
     heat_logits, side_pred = network(images)
@@ -160,7 +168,8 @@ def detector_loss(network, batch, box_weight):
     return focal_loss(heat_logits, heat) + box_weight * l1 / weight.sum().clamp_min(1)
 
 
-def detector_step(network, optimizer, batches):
+def detector_step(network: CenterBoxNet, optimizer: torch.optim.Optimizer,
+                  batches: DetectorBatches) -> float:
     """One optimisation step; returns the batch loss."""
     loss = detector_loss(network, batches.train_batch(), batches.settings.box_weight)
     optimizer.zero_grad(set_to_none=True)
@@ -169,7 +178,8 @@ def detector_step(network, optimizer, batches):
     return float(loss.detach())
 
 
-def detector_validation(network, batches, score_threshold=0.3, max_scenes=200):
+def detector_validation(network: CenterBoxNet, batches: DetectorBatches,
+                        score_threshold: float = 0.3, max_scenes: int = 200) -> dict[str, float]:
     """
     Score held-out scenes: loss, recall at IoU 0.5, and side errors of the matched boxes.
 

@@ -22,23 +22,35 @@ shows, for that network, the loss of its output normalised afterwards: the figur
 how well it actually points at the ground truth.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping
 import copy
 import dataclasses
 import json
 import math
 from pathlib import Path
 import time
+from typing import Any, TYPE_CHECKING
 
 import torch
 
-from bbpose_ros.core.nets.qnet import QNet
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import QNormalization, symmetric_dot_product_loss
 from bbpose_ros.core.training.loop import plot_curves
-from bbpose_ros.core.training.qnet_training import QNetBatches
+from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.crop_cache import CropCache
 
 
-def q_normalization_experiment(cache, models, config, settings, run_dir, steps, seed=0,
-                               threads=None, every=25):
+def q_normalization_experiment(cache: TrainingCache | CropCache,
+                               models: Mapping[str, ObjectModel], config: QNetConfig,
+                               settings: QNetTrainSettings, run_dir: Path | str, steps: int,
+                               seed: int = 0, threads: int | None = None,
+                               every: int = 25) -> dict[str, Any]:
     """
     Train both variants for ``steps`` steps and plot their losses into ``run_dir/fig3.png``.
 

@@ -20,33 +20,38 @@ A run folder holds ``checkpoint.pt`` (network, optimizer, step; small enough to 
 ``loss.png``. Resuming continues the step count, the learning-rate schedule and the log.
 """
 
+from collections.abc import Callable, Mapping, Sequence
 import csv
 import math
 from pathlib import Path
 import time
+from typing import Any
 
 from matplotlib.figure import Figure
 import torch
+from torch import nn
 from tqdm import tqdm
+
+from bbpose_ros.core.files import atomic_output
 
 
 class RunLog:
     """Appends rows to ``log.csv`` and lines to ``train.log`` in a run folder."""
 
-    def __init__(self, run_dir):
+    def __init__(self, run_dir: Path | str) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.csv_path = self.run_dir / 'log.csv'
         self.text_path = self.run_dir / 'train.log'
 
-    def text(self, line):
+    def text(self, line: str) -> None:
         """Write one timestamped line to train.log (and tqdm's stream)."""
         stamp = time.strftime('%Y-%m-%d %H:%M:%S')
         with open(self.text_path, 'a') as stream:
             stream.write(f'{stamp} {line}\n')
         tqdm.write(line)
 
-    def row(self, values):
+    def row(self, values: Mapping[str, Any]) -> None:
         """Append the dict ``values`` as a CSV row; the first row also writes the header."""
         new = not self.csv_path.is_file()
         with open(self.csv_path, 'a', newline='') as stream:
@@ -55,7 +60,7 @@ class RunLog:
                 writer.writeheader()
             writer.writerow(values)
 
-    def rows(self):
+    def rows(self) -> list[dict[str, float]]:
         """All CSV rows as dicts of floats (empty cells become NaN)."""
         if not self.csv_path.is_file():
             return []
@@ -64,7 +69,10 @@ class RunLog:
                     for r in csv.DictReader(stream)]
 
 
-def plot_curves(path, series, title, ylabel='loss', log_y=False, ylim=None):
+def plot_curves(path: Path | str,
+                series: Mapping[str, tuple[Sequence[float], Sequence[float]]], title: str,
+                ylabel: str = 'loss', log_y: bool = False,
+                ylim: tuple[float, float] | None = None) -> None:
     """Plot {label: (steps, values)} into a PNG at ``path`` (``ylim``: (low, high) or None)."""
     figure = Figure(figsize=(6, 4))
     axes = figure.add_subplot()
@@ -83,7 +91,7 @@ def plot_curves(path, series, title, ylabel='loss', log_y=False, ylim=None):
     figure.savefig(path, dpi=100)
 
 
-def cosine_lr(base_lr, step, total_steps, warmup=200):
+def cosine_lr(base_lr: float, step: int, total_steps: int, warmup: int = 200) -> float:
     """Linear warm-up then cosine decay to 5 % of ``base_lr``."""
     if step < warmup:
         return base_lr * (step + 1) / warmup
@@ -91,10 +99,13 @@ def cosine_lr(base_lr, step, total_steps, warmup=200):
     return base_lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
-def run_loop(run_dir, network, optimizer, train_step, steps, seconds, base_lr,
-             validate=None, every=500, on_checkpoint=None, progress=True, extra_state=None):
+def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Optimizer,
+             train_step: Callable[[int], float], steps: int, seconds: float | None,
+             base_lr: float, validate: Callable[[], Mapping[str, float]] | None = None,
+             every: int = 500, on_checkpoint: Callable[[int], None] | None = None,
+             progress: bool = True, extra_state: dict[str, Any] | None = None) -> int:
     """
-    Train until ``steps`` total steps or ``seconds`` of this session, whichever is first.
+    Train until ``steps`` total steps or ``seconds`` of this call, whichever is first.
 
     Args:
         run_dir: run folder (checkpoint.pt there is resumed).
@@ -157,10 +168,9 @@ def run_loop(run_dir, network, optimizer, train_step, steps, seconds, base_lr,
 
 
 def _checkpoint(path, network, optimizer, step, extra_state):
-    tmp = path.with_name(path.name + '.partial')
-    torch.save({'network': network.state_dict(), 'optimizer': optimizer.state_dict(),
-                'step': step, 'extra': extra_state or {}}, tmp)
-    tmp.replace(path)
+    with atomic_output(path) as tmp:
+        torch.save({'network': network.state_dict(), 'optimizer': optimizer.state_dict(),
+                    'step': step, 'extra': extra_state or {}}, tmp)
 
 
 def _plot_log(log):
@@ -174,7 +184,7 @@ def _plot_log(log):
         plot_sim_to_real(log.run_dir, rows)
 
 
-def plot_sim_to_real(run_dir, rows):
+def plot_sim_to_real(run_dir: Path | str, rows: Sequence[Mapping[str, float]]) -> None:
     """
     Chart each figure measured on both held-out renders (val_X) and real frames (real_X).
 

@@ -30,17 +30,27 @@ within that many degrees: a pose prior for upright objects seen by a roughly upr
 rule, where the target jumps from q to -q, disappears.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
+from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
 from bbpose_ros.core.nets.crops import box_centre_rays
 from bbpose_ros.core.nets.images import images_to_input
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
-from bbpose_ros.core.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.training.augment import photometric
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.crop_cache import CropCache
 
 
 @dataclass
@@ -55,7 +65,7 @@ class QNetTrainSettings:
     val_fraction: float = 0.05
     augment: float = 1.0
     sign_invariant: bool = False
-    max_inplane_deg: float = None
+    max_inplane_deg: float | None = None
 
 
 class QNetBatches:
@@ -72,7 +82,9 @@ class QNetBatches:
 
     """
 
-    def __init__(self, cache, config, models, settings, seed):
+    def __init__(self, cache: TrainingCache | CropCache, config: QNetConfig,
+                 models: Mapping[str, ObjectModel], settings: QNetTrainSettings,
+                 seed: int) -> None:
         self.cache, self.config, self.settings = cache, config, settings
         cache_index = [cache.objects.index(name) for name in config.objects]
         net_index = np.full(len(cache.objects), -1)
@@ -89,12 +101,13 @@ class QNetBatches:
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
 
-    def train_batch(self):
+    def train_batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(crops (B, 3, S, S) float, object index (B,), candidates (B, K, 4), valid (B, K))."""
         ids = self.rng.choice(self.train_ids, self.settings.batch)
         return self.make(ids, self.rng, self.settings.box_sigma, self.settings.augment)
 
-    def make(self, ids, rng, box_sigma, augment):
+    def make(self, ids: np.ndarray, rng: np.random.Generator, box_sigma: float,
+             augment: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Build a batch of the instances ``ids`` with the given jitter and augmentation."""
         cache, config = self.cache, self.config
         crops, boxes = cache.input_crops(ids, rng, box_sigma, config.crop_size, config.context)
@@ -117,14 +130,14 @@ class QNetBatches:
                 torch.from_numpy(valid))
 
 
-def inplane_deg(cache):
+def inplane_deg(cache: TrainingCache | CropCache) -> np.ndarray:
     """(m,) roll of each cached instance about the ray through its amodal box centre, deg."""
     rotations = egocentric_to_allocentric(cache.rotation.astype(float),
                                           box_centre_rays(cache.box_uv, cache.camera))
     return np.degrees(viewpoint_angles(rotations)[2])
 
 
-def symmetry_rotations(models):
+def symmetry_rotations(models: Sequence[ObjectModel]) -> tuple[np.ndarray, np.ndarray]:
     """
     Symmetry rotations of each object, identity first, padded to a common count K.
 
@@ -140,14 +153,15 @@ def symmetry_rotations(models):
     return rotations, valid
 
 
-def qnet_loss(network, images, index, candidates, valid):
+def qnet_loss(network: QNet, images: torch.Tensor, index: torch.Tensor,
+              candidates: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Per-crop training loss (B,): the symmetric Dot Product Loss, or winner-takes-all."""
     if network.config.hypotheses == 1:
         return symmetric_dot_product_loss(network(images, index), candidates, valid)
     return multi_hypothesis_loss(*network.hypotheses(images, index), candidates, valid)
 
 
-def qnet_step(network, optimizer, batches):
+def qnet_step(network: QNet, optimizer: torch.optim.Optimizer, batches: QNetBatches) -> float:
     """One optimisation step; returns the batch's mean loss."""
     images, index, candidates, valid = batches.train_batch()
     loss = qnet_loss(network, images, index, candidates, valid).mean()
@@ -157,7 +171,8 @@ def qnet_step(network, optimizer, batches):
     return float(loss.detach())
 
 
-def qnet_validation(network, batches, count=512, seed=12345):
+def qnet_validation(network: QNet, batches: QNetBatches, count: int = 512,
+                    seed: int = 12345) -> dict[str, float]:
     """Score held-out scenes: loss, median rotation error (deg), share under 15 deg."""
     rng = np.random.default_rng(seed)
     ids = rng.choice(batches.val_ids, min(count, len(batches.val_ids)), replace=False)

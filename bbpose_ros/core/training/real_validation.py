@@ -22,11 +22,22 @@ symmetric equivalent of the ground truth, as in ``metrics.cm_deg_errors``.
 frames only measure: nothing here feeds the optimiser.
 """
 
+from __future__ import annotations
+
+from collections.abc import Collection, Iterable, Mapping
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from bbpose_ros.core.detection_eval import score_detections
-from bbpose_ros.core.estimators import BoxDetector, QNetRotationEstimator
-from bbpose_ros.core.pipeline import Detection
+from bbpose_ros.core.eval.detection import score_detections
+from bbpose_ros.core.nets.detector import CenterBoxNet
+from bbpose_ros.core.nets.qnet import QNet
+from bbpose_ros.core.pipeline.estimators import BoxDetector, QNetRotationEstimator
+from bbpose_ros.core.pipeline.pose_pipeline import Detection
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.bop import BopFrame
+    from bbpose_ros.core.data.models import ObjectModel
 
 
 class RealCrops:
@@ -41,7 +52,8 @@ class RealCrops:
 
     """
 
-    def __init__(self, frames, objects, models, min_visib=0.1):
+    def __init__(self, frames: Iterable[BopFrame], objects: Collection[str],
+                 models: Mapping[str, ObjectModel], min_visib: float = 0.1) -> None:
         self.items = []
         for frame in frames:
             instances = [i for i in frame.instances
@@ -51,10 +63,10 @@ class RealCrops:
         self.symmetries = {name: models[name].symmetry_transforms[:, :3, :3]
                            for name in objects}
 
-    def __len__(self):
+    def __len__(self) -> int:
         return sum(len(instances) for _, _, instances in self.items)
 
-    def rotation_errors(self, network):
+    def rotation_errors(self, network: QNet) -> np.ndarray:
         """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
         estimate = QNetRotationEstimator(network, backend='torch')
         errors = []
@@ -67,7 +79,7 @@ class RealCrops:
                 errors.append(np.degrees(np.arccos(np.clip(cos, -1, 1))).min())
         return np.array(errors)
 
-    def figures(self, network):
+    def figures(self, network: QNet) -> dict[str, float]:
         """Median rotation error (deg) and the shares under 15 and 30 deg, for the log."""
         errors = self.rotation_errors(network)
         return {'real_median_deg': float(np.median(errors)),
@@ -85,12 +97,12 @@ class RealDetections:
 
     """
 
-    def __init__(self, frames, objects):
+    def __init__(self, frames: Iterable[BopFrame], objects: Iterable[str]) -> None:
         self.frames = list(frames)
         self.images = [frame.load_image() for frame in self.frames]
         self.objects = list(objects)
 
-    def figures(self, network):
+    def figures(self, network: CenterBoxNet) -> dict[str, float]:
         """Mean recall at IoU 0.5 (visible fraction >= 0.3) and AP50 of a CenterBoxNet."""
         detector = BoxDetector(network, self.objects, backend='torch')
         report = score_detections(self.frames, [detector(image) for image in self.images],

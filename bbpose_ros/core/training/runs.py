@@ -17,31 +17,43 @@ Training runs of Q-Net and the detector: build, train, checkpoint, export weight
 
 Each run folder gets ``checkpoint.pt`` (resumable), ``log.csv``, ``train.log``, ``loss.png``
 and the exported weight file (``qnet.pt`` / ``detector.pt``, with metadata, see
-``core.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere too. The
-detector's second stage trains in a run of its own and is exported with its first stage in
-one ``detector.pt``.
+``core.pipeline.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere
+too. The detector's second stage trains in a run of its own and is exported with its first
+stage in one ``detector.pt``.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
 import shutil
 import subprocess
 import sys
+from typing import TYPE_CHECKING
 
 import torch
 
-from bbpose_ros.core.nets.detector import CenterBoxNet
-from bbpose_ros.core.nets.qnet import QNet
+from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
+from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
-                                                        DetectorBatches)
+                                                        DetectorBatches, DetectorTrainSettings)
 from bbpose_ros.core.training.loop import run_loop, RunLog
-from bbpose_ros.core.training.qnet_training import qnet_step, qnet_validation, QNetBatches
+from bbpose_ros.core.training.qnet_training import (qnet_step, qnet_validation, QNetBatches,
+                                                    QNetTrainSettings)
 from bbpose_ros.core.training.verifier_training import (CandidateCrops, verifier_step,
-                                                        verifier_validation, VerifierBatches)
-from bbpose_ros.core.weights import save_weights
+                                                        verifier_validation, VerifierBatches,
+                                                        VerifierTrainSettings)
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.crop_cache import CropCache
+    from bbpose_ros.core.training.real_validation import RealCrops, RealDetections
 
 
-def git_commit():
+def git_commit() -> str:
     """Commit hash of the working tree's HEAD, or 'unknown' outside a git checkout."""
     try:
         return subprocess.run(['git', 'rev-parse', 'HEAD'], capture_output=True, text=True,
@@ -89,8 +101,11 @@ def _validated(validate, store):
     return run
 
 
-def train_qnet(cache, models, config, settings, run_dir, steps, seconds=None, seed=0,
-               threads=None, export=None, every=500, progress=True, real_crops=None):
+def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectModel],
+               config: QNetConfig, settings: QNetTrainSettings, run_dir: Path | str,
+               steps: int, seconds: float | None = None, seed: int = 0,
+               threads: int | None = None, export: Path | str | None = None, every: int = 500,
+               progress: bool = True, real_crops: RealCrops | None = None) -> QNet:
     """
     Train (or resume) a Q-Net on a TrainingCache or CropCache; returns the network.
 
@@ -124,8 +139,11 @@ def _qnet_figures(network, batches, real_crops):
     return figures
 
 
-def train_detector(cache, config, settings, run_dir, steps, seconds=None, seed=0,
-                   threads=None, export=None, every=500, progress=True):
+def train_detector(cache: TrainingCache, config: DetectorConfig,
+                   settings: DetectorTrainSettings, run_dir: Path | str, steps: int,
+                   seconds: float | None = None, seed: int = 0, threads: int | None = None,
+                   export: Path | str | None = None, every: int = 500,
+                   progress: bool = True) -> CenterBoxNet:
     """Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise."""
     _prepare(run_dir, seed, threads)
     network = CenterBoxNet(config).to(memory_format=torch.channels_last)
@@ -146,7 +164,8 @@ def train_detector(cache, config, settings, run_dir, steps, seconds=None, seed=0
     return network
 
 
-def with_verifier(detector, channels, crop_size, context, candidates):
+def with_verifier(detector: CenterBoxNet, channels: Sequence[int], crop_size: int,
+                  context: float, candidates: int) -> CenterBoxNet:
     """
     Copy a trained CenterBoxNet and give it a new, untrained second stage.
 
@@ -163,8 +182,11 @@ def with_verifier(detector, channels, crop_size, context, candidates):
     return cascade
 
 
-def train_verifier(cache, cascade, settings, run_dir, steps, seconds=None, seed=0,
-                   threads=None, export=None, every=500, progress=True, real_frames=None):
+def train_verifier(cache: TrainingCache, cascade: CenterBoxNet,
+                   settings: VerifierTrainSettings, run_dir: Path | str, steps: int,
+                   seconds: float | None = None, seed: int = 0, threads: int | None = None,
+                   export: Path | str | None = None, every: int = 500, progress: bool = True,
+                   real_frames: RealDetections | None = None) -> CenterBoxNet:
     """
     Train (or resume) the second stage of ``cascade`` (``with_verifier``) on a TrainingCache.
 

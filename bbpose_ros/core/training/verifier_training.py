@@ -27,6 +27,7 @@ photometric augmentation. The loss: cross-entropy + ``box_weight`` x smooth L1 o
 corrections of the positives.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,11 +35,14 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from bbpose_ros.core.evaluation import box_iou
+from bbpose_ros.core.geometry.boxes import box_iou
+from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
-from bbpose_ros.core.nets.detector import decode
+from bbpose_ros.core.nets.detector import CenterBoxNet, decode
 from bbpose_ros.core.nets.images import images_to_input
-from bbpose_ros.core.training.augment import jitter_boxes, photometric
+from bbpose_ros.core.nets.verifier import CandidateVerifier
+from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import detector_classes, to_input_pixels
 
 
@@ -74,7 +78,9 @@ class CandidateCrops:
 
     """
 
-    def __init__(self, network, cache, settings, seed, progress=True, chunk=64):
+    def __init__(self, network: CenterBoxNet, cache: TrainingCache,
+                 settings: VerifierTrainSettings, seed: int, progress: bool = True,
+                 chunk: int = 64) -> None:
         config = network.config
         class_of = detector_classes(config, cache)
         rng = np.random.default_rng(seed)
@@ -105,7 +111,9 @@ class CandidateCrops:
         self.scenes = len(cache.images)
 
 
-def candidate_targets(boxes, squares, truth, truth_class, positive_iou):
+def candidate_targets(boxes: np.ndarray, squares: np.ndarray, truth: np.ndarray,
+                      truth_class: np.ndarray,
+                      positive_iou: float) -> tuple[np.ndarray, np.ndarray]:
     """
     Labels (K,) and side corrections (K, 4) of candidate ``boxes`` cut as ``squares``.
 
@@ -127,7 +135,8 @@ def candidate_targets(boxes, squares, truth, truth_class, positive_iou):
 class VerifierBatches:
     """Draws balanced, augmented batches of CandidateCrops; the last scenes validate."""
 
-    def __init__(self, candidates, settings, seed):
+    def __init__(self, candidates: CandidateCrops, settings: VerifierTrainSettings,
+                 seed: int) -> None:
         self.candidates, self.settings = candidates, settings
         held_out = candidates.scene >= int(candidates.scenes * (1 - settings.val_fraction))
         train = np.flatnonzero(~held_out)
@@ -139,7 +148,7 @@ class VerifierBatches:
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
 
-    def train_batch(self):
+    def train_batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(crops (B, 3, S, S) float, labels (B,) long, corrections (B, 4)), augmented."""
         count = int(round(self.settings.batch * self.settings.positive_fraction))
         ids = np.concatenate([self.rng.choice(self.positives, count),
@@ -147,14 +156,15 @@ class VerifierBatches:
         crops, labels, corrections = self.batch(ids)
         return photometric(crops, self.generator, self.settings.augment), labels, corrections
 
-    def batch(self, ids):
+    def batch(self, ids: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(crops (n, 3, S, S) float, labels (n,) long, corrections (n, 4)) of ``ids``."""
         return (images_to_input(torch.from_numpy(self.candidates.crops[ids])),
                 torch.from_numpy(self.candidates.labels[ids]),
                 torch.from_numpy(self.candidates.corrections[ids]))
 
 
-def verifier_loss(verifier, batch, settings):
+def verifier_loss(verifier: CandidateVerifier, batch: Sequence[torch.Tensor],
+                  settings: VerifierTrainSettings) -> torch.Tensor:
     """Cross-entropy + ``box_weight`` x smooth L1 of the positives' side corrections."""
     crops, labels, corrections = batch
     logits, predicted = verifier.outputs(crops)
@@ -165,7 +175,8 @@ def verifier_loss(verifier, batch, settings):
         + settings.box_weight * box
 
 
-def verifier_step(verifier, optimizer, batches):
+def verifier_step(verifier: CandidateVerifier, optimizer: torch.optim.Optimizer,
+                  batches: VerifierBatches) -> float:
     """One optimisation step; returns the batch loss."""
     loss = verifier_loss(verifier, batches.train_batch(), batches.settings)
     optimizer.zero_grad(set_to_none=True)
@@ -174,7 +185,8 @@ def verifier_step(verifier, optimizer, batches):
     return float(loss.detach())
 
 
-def verifier_validation(verifier, batches, max_crops=20000):
+def verifier_validation(verifier: CandidateVerifier, batches: VerifierBatches,
+                        max_crops: int = 20000) -> dict[str, float]:
     """
     Held-out scenes: loss, accuracy, positives given their class, side error of the positives.
 

@@ -1,0 +1,220 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Reader for datasets in the BOP format (github.com/thodan/bop_toolkit).
+
+BOP stores translations in millimetres and boxes as integer (x, y, w, h) of the covered
+pixels; this reader returns metres and continuous boxes (see ``bop_box_to_uv``).
+"""
+
+from collections.abc import Collection, Iterable
+from dataclasses import dataclass
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from bbpose_ros.core.data.models import LINEMOD_OBJECTS, load_bop_models, MM_TO_M, ObjectModel
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+
+
+# Where the development frames live beside a checkout (overridden by --dataset and
+# $BBPOSE_DATASET).
+DEFAULT_DATASET = Path('../shared/datasets/lmo')
+
+
+def bop_box_to_uv(bbox_xywh: npt.ArrayLike) -> np.ndarray:
+    """
+    Convert a BOP box (x, y, w, h) to a continuous box [x, y, x + w + 1, y + h + 1].
+
+    BOP's box covers pixel columns x .. x + w inclusive, from a renderer whose pixel (i, j)
+    spans [i, i + 1] x [j, j + 1] in K's coordinates. The projected model's extremes are
+    therefore at u = x and u = x + w + 1.
+    BOP writes (-1, -1, -1, -1) when it has no box; that becomes four NaNs.
+    """
+    x, y, w, h = (float(value) for value in bbox_xywh)
+    if w < 0 or h < 0:
+        return np.full(4, np.nan)
+    return np.array([x, y, x + w + 1.0, y + h + 1.0])
+
+
+@dataclass(frozen=True)
+class GroundTruthInstance:
+    """
+    One annotated object instance in a frame.
+
+    Attributes:
+        object_name: e.g. 'ape'.
+        obj_id: BOP object id.
+        rotation: (3, 3) model-to-camera rotation.
+        translation: (3,) metres, camera frame.
+        box_uv: (4,) amodal box (whole projected model, hidden parts included),
+            [u_min, v_min, u_max, v_max] continuous pixels.
+        visible_box_uv: (4,) box of the visible pixels, same convention.
+        visib_fract: visible fraction of the projected object, 0..1.
+
+    """
+
+    object_name: str
+    obj_id: int
+    rotation: np.ndarray
+    translation: np.ndarray
+    box_uv: np.ndarray
+    visible_box_uv: np.ndarray
+    visib_fract: float
+
+
+@dataclass(frozen=True)
+class BopFrame:
+    """One image of a BOP scene with its camera and ground truth."""
+
+    scene_id: int
+    image_id: int
+    image_path: Path
+    camera: CameraIntrinsics
+    instances: tuple[GroundTruthInstance, ...]
+
+    def load_image(self) -> np.ndarray:
+        """Read the image as (H, W, 3) uint8 RGB; a missing or unreadable file is named."""
+        image = cv2.imread(str(self.image_path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise InputError(f'missing or unreadable image: {self.image_path}')
+        if image.shape[:2] != (self.camera.height, self.camera.width):
+            raise InputError(
+                f'image {self.image_path} is {image.shape[1]}x{image.shape[0]}, but its camera '
+                f'says {self.camera.width}x{self.camera.height}')
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_json(path: Path | str) -> Any:
+    """Read a JSON file; a missing or malformed file is an InputError naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise InputError(f'missing file: {path}') from err
+    except ValueError as err:
+        raise InputError(f'malformed JSON in {path}: {err}') from err
+
+
+def _field(record, key, path, where, shape=None):
+    """Fetch ``record[key]`` (as an array of ``shape`` if given) or name what is wrong."""
+    try:
+        value = record[key]
+        return value if shape is None else np.asarray(value, dtype=float).reshape(shape)
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f'{path}: {where} has no valid "{key}" ({err})') from err
+
+
+class BopDataset:
+    """
+    A BOP dataset folder: ``camera.json``, ``models/``, ``<split>/<scene>/`` per scene.
+
+    Scenes hold ``rgb/``, ``scene_camera.json``, ``scene_gt.json`` and
+    ``scene_gt_info.json``. Only objects named in LINEMOD_OBJECTS get their common name;
+    others are called ``obj_NNNNNN``.
+    """
+
+    def __init__(self, root: Path | str, split: str = 'test') -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError(f'dataset folder not found: {self.root}')
+        self.split_dir = self.root / split
+        if not self.split_dir.is_dir():
+            raise InputError(f'dataset split folder not found: {self.split_dir}')
+        self.camera_size = self._image_size()
+
+    def _image_size(self):
+        camera_path = self.root / 'camera.json'
+        camera = read_json(camera_path)
+        return (int(_field(camera, 'width', camera_path, 'camera')),
+                int(_field(camera, 'height', camera_path, 'camera')))
+
+    @property
+    def scene_ids(self) -> list[int]:
+        """Sorted ids of the scenes in the split."""
+        return sorted(int(p.name) for p in self.split_dir.iterdir()
+                      if p.is_dir() and p.name.isdigit())
+
+    def load_models(self, names: Collection[str] | None = None) -> dict[str, ObjectModel]:
+        """Load the object models as {name: ObjectModel} (see ``load_bop_models``)."""
+        return load_bop_models(self.root, names)
+
+    def frames(self, scene_ids: Iterable[int] | None = None,
+               image_ids: Collection[int] | None = None) -> list[BopFrame]:
+        """
+        All frames of the given scenes (default all), sorted by scene and image id.
+
+        ``image_ids`` optionally keeps only those image ids.
+        """
+        frames = []
+        for scene_id in scene_ids if scene_ids is not None else self.scene_ids:
+            frames.extend(self._scene_frames(scene_id, image_ids))
+        return frames
+
+    def _scene_frames(self, scene_id, image_ids):
+        scene_dir = self.split_dir / f'{scene_id:06d}'
+        cameras = read_json(scene_dir / 'scene_camera.json')
+        gts = read_json(scene_dir / 'scene_gt.json')
+        infos = read_json(scene_dir / 'scene_gt_info.json')
+        width, height = self.camera_size
+        frames = []
+        for key in sorted(cameras, key=int):
+            image_id = int(key)
+            if image_ids is not None and image_id not in image_ids:
+                continue
+            k = _field(cameras[key], 'cam_K', scene_dir / 'scene_camera.json',
+                       f'image {image_id}', (3, 3))
+            camera = CameraIntrinsics.from_k(k, width, height)
+            instances = self._instances(scene_dir, key, gts.get(key, []), infos.get(key, []))
+            frames.append(BopFrame(scene_id, image_id, self._image_path(scene_dir, image_id),
+                                   camera, instances))
+        return frames
+
+    @staticmethod
+    def _image_path(scene_dir, image_id):
+        for folder, ext in (('rgb', '.png'), ('rgb', '.jpg'), ('gray', '.png')):
+            path = scene_dir / folder / f'{image_id:06d}{ext}'
+            if path.is_file():
+                return path
+        return scene_dir / 'rgb' / f'{image_id:06d}.png'
+
+    @staticmethod
+    def _instances(scene_dir, key, gts, infos):
+        if len(gts) != len(infos):
+            raise InputError(f'{scene_dir}: image {key} has {len(gts)} poses in scene_gt.json '
+                             f'but {len(infos)} entries in scene_gt_info.json')
+        instances = []
+        for index, (gt, info) in enumerate(zip(gts, infos)):
+            where = f'image {key} instance {index}'
+            obj_id = int(_field(gt, 'obj_id', scene_dir / 'scene_gt.json', where))
+            instances.append(GroundTruthInstance(
+                object_name=LINEMOD_OBJECTS.get(obj_id, f'obj_{obj_id:06d}'),
+                obj_id=obj_id,
+                rotation=_field(gt, 'cam_R_m2c', scene_dir / 'scene_gt.json', where, (3, 3)),
+                translation=_field(gt, 'cam_t_m2c', scene_dir / 'scene_gt.json', where,
+                                   (3,)) * MM_TO_M,
+                box_uv=bop_box_to_uv(_field(info, 'bbox_obj', scene_dir / 'scene_gt_info.json',
+                                            where, (4,))),
+                visible_box_uv=bop_box_to_uv(_field(info, 'bbox_visib',
+                                                    scene_dir / 'scene_gt_info.json', where,
+                                                    (4,))),
+                visib_fract=float(_field(info, 'visib_fract',
+                                         scene_dir / 'scene_gt_info.json', where))))
+        return tuple(instances)

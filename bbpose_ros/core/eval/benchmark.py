@@ -1,0 +1,251 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Speed of the pose pipeline stage by stage on real frames, and process readings (no ROS).
+
+``benchmark_frames`` times each frame as the node handles it, in milliseconds:
+
+* ``image_conversion``: the message buffer -> (H, W, 3) RGB array;
+* ``detector``: the 2D detector on the whole frame;
+* ``qnet``: crop + Q-Net for all objects of the frame (one batch);
+* ``hypothesis_selection``: choosing among a multi-hypothesis Q-Net's rotations with the
+  Bounding Box Equation (``hypotheses``; absent when the pipeline does not), and
+  ``qnet_and_selection`` the two together (the Q-Net budget counts ``qnet`` only);
+* ``bbox_equation``: the Bounding Box Equation for all of them (one batched call), and
+  ``bbox_equation_per_object`` the same divided by the number of objects;
+* ``messages``: building the frame's output messages.
+
+Buffers and messages are made by callables, so the ROS layer times the node's own code while
+this module stays ROS-free. Each frame is timed in two modes: ``detector`` (the detector's
+own detections, what the node does) and ``all_objects`` (the detector still runs, but Q-Net,
+the equation and the messages get the ground-truth amodal box of every annotated object of
+the frame: the worst case of the speed budget).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import resource
+import time
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.eval.evaluation import ground_truth_detections
+from bbpose_ros.core.latency import latency_stats, stage_stats
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.bop import BopFrame
+    from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate, PosePipeline
+
+STAGES = ('image_conversion', 'detector', 'qnet', 'hypothesis_selection', 'qnet_and_selection',
+          'bbox_equation', 'bbox_equation_per_object', 'messages')
+MODES = ('detector', 'all_objects')
+
+# The speed budget of issue 5 (ms, on 2 CPU cores): (mode, stage, statistic, limit).
+FRAME_BUDGETS = {
+    'bbox_equation_per_object': ('all_objects', 'bbox_equation_per_object', 'median_ms', 0.1),
+    'qnet_all_objects': ('all_objects', 'qnet', 'median_ms', 2.0),
+    'detector': ('detector', 'detector', 'median_ms', 15.0),
+    'frame_all_objects_p95': ('all_objects', 'total', 'p95_ms', 33.0),
+}
+GRAPH_LATENCY_P95_MS = 40.0
+GRAPH_RSS_GROWTH_PERCENT = 5.0
+# Seconds into a graph run after which the node's RSS counts as settled (see summarize_graph).
+RSS_SETTLE_S = 10.0
+_CLOCK_TICKS_PER_S = os.sysconf('SC_CLK_TCK')     # unit of /proc/<pid>/stat CPU times
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, in MiB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # Linux: KiB
+
+
+@dataclass(frozen=True)
+class ProcessSample:
+    """A process's CPU time used so far (user + system, s) and RSS (MiB) at time_s (monotonic)."""
+
+    time_s: float
+    cpu_s: float
+    rss_mb: float
+
+
+def sample_process(pid: int) -> ProcessSample:
+    """Read the CPU time and resident memory of process ``pid`` from /proc (Linux)."""
+    try:
+        stat = Path(f'/proc/{pid}/stat').read_text()
+        status = Path(f'/proc/{pid}/status').read_text()
+    except OSError as err:
+        raise InputError(f'process {pid} is gone ({err})') from err
+    fields = stat[stat.rindex(')') + 2:].split()     # from field 3 (state) on
+    ticks = int(fields[11]) + int(fields[12])        # fields 14 and 15: utime, stime
+    rss_kb = next(int(line.split()[1]) for line in status.splitlines()
+                  if line.startswith('VmRSS:'))
+    return ProcessSample(time.monotonic(), ticks / _CLOCK_TICKS_PER_S, rss_kb / 1024.0)
+
+
+def cpu_percent(start: ProcessSample, end: ProcessSample) -> float:
+    """CPU use between two ProcessSamples, in % of one core (up to 100 x cores)."""
+    return 100.0 * (end.cpu_s - start.cpu_s) / max(end.time_s - start.time_s, 1e-9)
+
+
+def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
+                     to_buffer: Callable[[np.ndarray], Any],
+                     from_buffer: Callable[[Any], np.ndarray],
+                     build_messages: Callable[[list[PoseEstimate]], Any],
+                     warmup: int = 10) -> dict[str, Any]:
+    """
+    Time the pipeline on each frame in both MODES and return the report.
+
+    Args:
+        frames: BopFrame list; images are read one at a time, untimed.
+        pipeline: a PosePipeline with a detector and a rotation estimator.
+        to_buffer: (H, W, 3) uint8 RGB -> the message the node would receive (untimed).
+        from_buffer: that message -> (H, W, 3) uint8 RGB (the node's image conversion).
+        build_messages: list of PoseEstimate -> the frame's output messages.
+        warmup: untimed frames first (the first frames again), in both modes.
+
+    Returns:
+        {'stages': {stage: latency_stats}, 'total', 'fps', 'objects_per_frame'} of the
+        detector mode, its 'all_objects' counterpart, 'peak_rss_mb',
+        'frames' and 'budgets' ({name: {'value', 'limit', 'met'}}).
+
+    """
+    if not frames:
+        raise InputError('no frames to benchmark')
+    timings = {mode: [] for mode in MODES}
+    for index in range(-warmup, len(frames)):
+        frame = frames[index % len(frames)]
+        buffer = to_buffer(frame.load_image())
+        truth = ground_truth_detections(
+            [i for i in frame.instances if np.all(np.isfinite(i.box_uv))])
+        for mode, oracle in zip(MODES, (None, truth)):
+            times = _time_frame(pipeline, frame.camera, buffer, from_buffer, build_messages,
+                                oracle)
+            if index >= 0:
+                timings[mode].append(times)
+    report = _summary(timings['detector'])
+    report['all_objects'] = _summary(timings['all_objects'])
+    report.update(peak_rss_mb=peak_rss_mb(), frames=len(frames))
+    report['budgets'] = {name: budget(_frame_statistic(report, *where[:3]), where[3])
+                         for name, where in FRAME_BUDGETS.items()}
+    return report
+
+
+def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
+                    node_start: ProcessSample, node_end: ProcessSample,
+                    node_counts: Mapping[str, int],
+                    rss_trace: Sequence[tuple[float, float]] = ()) -> dict[str, Any]:
+    """
+    Make the report of a fixed-rate run through the ROS graph.
+
+    Args:
+        latencies: per published frame, in publication order, {'end_to_end': ms to its last
+            PoseStamped (frames with poses), 'answer': ms to its MarkerArray (answered
+            frames)}.
+        published: number of frames published.
+        node_start, node_end: ProcessSamples of the node at the first and last publication.
+        node_counts: {counter: frames} the node counted during the run.
+        rss_trace: [(seconds since the first publication, node RSS in MB)].
+
+    Returns:
+        {'latency', 'answer_latency': latency_stats, 'latency_drift_ms' (median answer
+        latency of the last third of the frames minus the first third's), 'frames':
+        {'published', 'answered', 'dropped', 'with_poses'}, 'node': {'cpu_percent',
+        'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'rss_settled_mb' (the first
+        sample RSS_SETTLE_S into the run; None in a shorter run),
+        'rss_growth_after_settle_percent', 'rss_trace_mb', 'counts'}, 'budgets'}. The budget
+        is on 'rss_growth_percent'; the settled figures tell a one-off step in the first
+        seconds from a steady climb.
+
+    """
+    answers = [frame['answer'] for frame in latencies if 'answer' in frame]
+    third = len(answers) // 3
+    growth = 100.0 * (node_end.rss_mb - node_start.rss_mb) / node_start.rss_mb
+    settled = next((mb for seconds, mb in rss_trace if seconds >= RSS_SETTLE_S), None)
+    report = {
+        'latency': latency_stats([f['end_to_end'] for f in latencies if 'end_to_end' in f]),
+        'answer_latency': latency_stats(answers),
+        'latency_drift_ms': float(np.median(answers[-third:]) - np.median(answers[:third]))
+        if third else None,
+        'frames': {'published': published, 'answered': len(answers),
+                   'dropped': published - len(answers),
+                   'with_poses': sum('end_to_end' in f for f in latencies)},
+        'node': {'cpu_percent': cpu_percent(node_start, node_end),
+                 'rss_start_mb': node_start.rss_mb, 'rss_end_mb': node_end.rss_mb,
+                 'rss_growth_percent': growth, 'rss_settled_mb': settled,
+                 'rss_growth_after_settle_percent':
+                     None if settled is None else 100.0 * (node_end.rss_mb - settled) / settled,
+                 'rss_trace_mb': [[round(s, 2), round(mb, 1)] for s, mb in rss_trace],
+                 'counts': dict(node_counts)}}
+    report['budgets'] = {
+        'answer_latency_p95': budget(report['answer_latency']['p95_ms'],
+                                     GRAPH_LATENCY_P95_MS),
+        'frames_dropped': budget(report['frames']['dropped'], 0),
+        'rss_growth_percent': budget(growth, GRAPH_RSS_GROWTH_PERCENT)}
+    return report
+
+
+def budget(value: float | None, limit: float) -> dict[str, Any]:
+    """Return {'value', 'limit', 'met'}: met when the value is known and at most the limit."""
+    return {'value': value, 'limit': limit, 'met': value is not None and value <= limit}
+
+
+def _frame_statistic(report, mode, stage, statistic):
+    summary = report if mode == 'detector' else report[mode]
+    stats = summary['total'] if stage == 'total' else summary['stages'].get(stage, {})
+    return stats.get(statistic)
+
+
+def _summary(per_frame):
+    """Return the stage statistics, total, fps and objects per frame of timed frames."""
+    totals = [times.pop('total') for times in per_frame]
+    counts = [times.pop('objects') for times in per_frame]
+    stages = stage_stats(per_frame)
+    return {'stages': {stage: stages[stage] for stage in STAGES if stage in stages},
+            'total': latency_stats(totals), 'fps': 1e3 * len(totals) / sum(totals),
+            'objects_per_frame': float(np.mean(counts))}
+
+
+def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
+    """One frame's {stage: ms, 'total': ms, 'objects': count}; ``oracle`` replaces detections."""
+    start = time.perf_counter()
+    image = from_buffer(buffer)
+    converted = time.perf_counter()
+    found = pipeline.detector(image)
+    detected = time.perf_counter()
+    result = pipeline.estimate(image, camera, found if oracle is None else oracle)
+    estimated = time.perf_counter()
+    build_messages(result.poses)
+    end = time.perf_counter()
+    times = {'image_conversion': _ms(start, converted), 'detector': _ms(converted, detected),
+             'messages': _ms(estimated, end), 'total': _ms(start, end),
+             'objects': len(result.poses)}
+    if result.poses:
+        times['qnet'] = result.timings_ms['rotation']
+        if 'hypothesis_selection' in result.timings_ms:
+            times['hypothesis_selection'] = result.timings_ms['hypothesis_selection']
+            times['qnet_and_selection'] = times['qnet'] + times['hypothesis_selection']
+        times['bbox_equation'] = result.timings_ms['translation']
+        times['bbox_equation_per_object'] = times['bbox_equation'] / len(result.poses)
+    return times
+
+
+def _ms(start_s, end_s):
+    return (end_s - start_s) * 1e3

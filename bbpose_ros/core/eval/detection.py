@@ -1,0 +1,158 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+2D detection metrics of the pipeline's detector on BOP frames: recall and AP at IoU 0.5.
+
+Boxes are amodal [u_min, v_min, u_max, v_max] in continuous pixels, compared with the
+ground-truth ``bbox_obj`` boxes. Per object name, detections are matched greedily by score
+(``evaluation.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
+detection that only matches a less visible instance is ignored (neither hit nor false alarm).
+Recall is also given over the instances with visible fraction >= 0.3. AP is computed over
+the detections the detector reports, so its score threshold (0.3 in ``load_pipeline``) cuts
+the precision-recall curve short.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+import math
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+from tqdm import tqdm
+
+from bbpose_ros.core.eval.evaluation import DETECTION_IOU, match_by_score, mean_over_objects
+from bbpose_ros.core.eval.tables import format_object_table
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.bop import BopFrame
+    from bbpose_ros.core.pipeline.pose_pipeline import Detection, PosePipeline
+
+VISIB_STRICT = 0.3
+
+
+def average_precision(scores: npt.ArrayLike, hits: npt.ArrayLike, positives: int) -> float:
+    """
+    All-point interpolated AP (VOC 2010+ / COCO style) from per-detection results.
+
+    Args:
+        scores: (D,) detection scores.
+        hits: (D,) bool, True for a detection matched to a counted instance.
+        positives: number of counted instances.
+
+    """
+    if positives == 0:
+        return math.nan
+    order = np.argsort(-np.asarray(scores, dtype=float), kind='stable')
+    hits = np.asarray(hits, dtype=bool)[order]
+    tp, fp = np.cumsum(hits), np.cumsum(~hits)
+    recall = tp / positives
+    precision = tp / np.maximum(tp + fp, 1)
+    precision = np.concatenate([[0.0], precision, [0.0]])
+    recall = np.concatenate([[0.0], recall, [recall[-1] if len(recall) else 0.0]])
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    return float(np.sum((recall[1:] - recall[:-1]) * precision[1:]))
+
+
+def evaluate_detections(frames: Sequence[BopFrame], pipeline: PosePipeline,
+                        min_visib: float = 0.1, progress: bool = True) -> dict[str, Any]:
+    """
+    Run ``pipeline.detector`` on BopFrames and score it (see ``score_detections``).
+
+    Returns:
+        {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
+        'recall_iou50_visib30'}}, 'mean': {same keys but the counts, averaged over objects}}.
+
+    """
+    detections = [pipeline.detector(frame.load_image())
+                  for frame in tqdm(frames, desc='detecting', unit='frame',
+                                    disable=not progress)]
+    return score_detections(frames, detections, list(pipeline.models), min_visib)
+
+
+def score_detections(frames: Sequence[BopFrame], detections: Sequence[Sequence[Detection]],
+                     names: Sequence[str], min_visib: float = 0.1) -> dict[str, Any]:
+    """
+    Score detections already made, one list of Detection per BopFrame, for the given objects.
+
+    Args:
+        frames: BopFrame list.
+        detections: list (one per frame, same order) of lists of Detection; detections of
+            other objects than ``names`` are ignored.
+        names: object names to score.
+        min_visib: instances less visible than this are not counted.
+
+    Returns:
+        {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
+        'recall_iou50_visib30'}}, 'mean': {'recall_iou50', 'ap50', 'recall_iou50_visib30'}
+        averaged over the objects where they are defined}. ``n`` counts the instances with
+        visible fraction >= ``min_visib``, ``n_visib30`` those >= 0.3; a figure with no
+        instance to count is NaN.
+
+    Raises:
+        ValueError: not one list of detections per frame.
+
+    """
+    if len(detections) != len(frames):
+        raise ValueError(f'{len(detections)} lists of detections for {len(frames)} frames')
+    found = {n: [] for n in names}       # per counted instance: (visib, hit)
+    dets = {n: [] for n in names}        # per detection: (score, hit)
+    for frame, frame_detections in zip(frames, detections):
+        for name in names:
+            _score_object(name, frame_detections, frame.instances, min_visib, found[name],
+                          dets[name])
+    per_object = {}
+    for name in names:
+        visib = np.array([v for v, _ in found[name]], dtype=float)
+        hit = np.array([h for _, h in found[name]], dtype=bool)
+        strict = visib >= VISIB_STRICT
+        per_object[name] = {
+            'n': int(len(hit)),
+            'recall_iou50': float(hit.mean()) if len(hit) else math.nan,
+            'ap50': average_precision([s for s, _ in dets[name]],
+                                      [h for _, h in dets[name]], len(hit)),
+            'n_visib30': int(strict.sum()),
+            'recall_iou50_visib30': float(hit[strict].mean()) if strict.any() else math.nan,
+        }
+    return {'detection': per_object,
+            'mean': mean_over_objects(per_object, ('recall_iou50', 'ap50',
+                                                   'recall_iou50_visib30'))}
+
+
+DETECTION_COLUMNS = (('n', 'n', '{:d}'), ('recall_iou50', 'recall50', '{:.3f}'),
+                     ('ap50', 'AP50', '{:.3f}'), ('n_visib30', 'n_vis30', '{:d}'),
+                     ('recall_iou50_visib30', 'recall50_v30', '{:.3f}'))
+
+
+def format_detection_report(report: Mapping[str, Any]) -> str:
+    """Format the per-object detection table (``score_detections``' dict) with a mean row."""
+    return format_object_table(report['detection'], report['mean'], DETECTION_COLUMNS, 13)
+
+
+def _score_object(name, detections, instances, min_visib, found, dets):
+    """Match one object's detections in a frame; append to ``found`` and ``dets``."""
+    mine = [d for d in detections if d.object_name == name]
+    truths = [i for i in instances if i.object_name == name]
+    matches = match_by_score([d.box_uv for d in mine], [d.score for d in mine],
+                             [t.box_uv for t in truths], DETECTION_IOU)
+    matched = set(matches[matches >= 0].tolist())
+    for k, truth in enumerate(truths):
+        if truth.visib_fract >= min_visib:
+            found.append((truth.visib_fract, k in matched))
+    for detection, match in zip(mine, matches):
+        if match >= 0 and truths[match].visib_fract < min_visib:
+            continue
+        dets.append((detection.score, bool(match >= 0)))

@@ -1,0 +1,292 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Offline evaluation of the pipeline on BOP frames, with the report's JSON layout.
+
+An instance counts when its visible fraction is at least ``min_visib`` (0.1, as BOP does);
+an instance the pipeline misses counts as a failure in every recall. Medians and means of
+errors are taken over the instances that were found.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
+import math
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+from tqdm import tqdm
+
+from bbpose_ros.core.eval import metrics
+from bbpose_ros.core.eval.tables import format_object_table
+from bbpose_ros.core.geometry.boxes import box_iou
+from bbpose_ros.core.geometry.rotations import euler_error_deg
+from bbpose_ros.core.latency import timing_summary
+from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate, PosePipeline
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.bop import BopFrame, GroundTruthInstance
+    from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.geometry.camera import CameraIntrinsics
+
+ADD_THRESHOLD = 0.1           # fraction of the diameter
+PROJ_THRESHOLD_PX = 5.0
+RE_THRESHOLD_DEG = 5.0
+TE_THRESHOLD_M = 0.05
+MATCH_IOU = 0.1               # a pose is scored against the instance its box overlaps
+DETECTION_IOU = 0.5
+
+POSE_KEYS = ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px', 're_median_deg',
+             'te_median_mm', 'euler_mean_deg', 'te5cm_uncut')
+
+
+@dataclass(frozen=True)
+class InstanceScore:
+    """Errors of one counted ground-truth instance (NaN where missed), and how visible it is."""
+
+    object_name: str
+    detected: bool
+    box_inside_image: bool
+    add_error: float
+    add_threshold: float
+    re_deg: float
+    te_m: float
+    proj_px: float
+    euler_deg: float
+    visib_fract: float
+
+
+def match_by_score(boxes_det: npt.ArrayLike, scores: npt.ArrayLike, boxes_gt: npt.ArrayLike,
+                   min_iou: float) -> np.ndarray:
+    """
+    Greedy matching, highest score first, each detection to the free ground truth of most IoU.
+
+    Returns an (N_det,) array of ground-truth indices, -1 where a detection found none with
+    IoU >= ``min_iou``.
+    """
+    matches = np.full(len(boxes_det), -1)
+    if len(boxes_det) == 0 or len(boxes_gt) == 0:
+        return matches
+    iou = box_iou(boxes_det, boxes_gt)
+    free = np.ones(len(boxes_gt), dtype=bool)
+    for det in np.argsort(-np.asarray(scores), kind='stable'):
+        candidates = np.where(free, iou[det], -1.0)
+        best = int(np.argmax(candidates))
+        if candidates[best] >= min_iou:
+            matches[det] = best
+            free[best] = False
+    return matches
+
+
+def score_instance(model: ObjectModel, instance: GroundTruthInstance, pose: PoseEstimate | None,
+                   camera: CameraIntrinsics) -> InstanceScore:
+    """Score one ground-truth instance against a PoseEstimate (or None: missed)."""
+    inside = bool(instance.box_uv[0] >= -0.5 and instance.box_uv[1] >= -0.5
+                  and instance.box_uv[2] <= camera.width - 0.5
+                  and instance.box_uv[3] <= camera.height - 0.5)
+    threshold = ADD_THRESHOLD * model.diameter
+    if pose is None:
+        nan = float('nan')
+        return InstanceScore(model.name, False, inside, nan, threshold, nan, nan, nan, nan,
+                             instance.visib_fract)
+    args = (pose.rotation, pose.translation, instance.rotation, instance.translation)
+    distance = metrics.adi if model.is_symmetric else metrics.add
+    re_deg, te_m = metrics.cm_deg_errors(*args, model.symmetry_transforms)
+    return InstanceScore(
+        model.name, True, inside, distance(*args, model.eval_points), threshold, re_deg, te_m,
+        metrics.proj(*args, camera.k, model.eval_points),
+        float(euler_error_deg(pose.rotation, instance.rotation)[0]), instance.visib_fract)
+
+
+def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
+    """Per-object figures (POSE_KEYS) from a list of InstanceScore of one object."""
+    def errors(name):
+        return np.array([getattr(s, name) for s in scores], dtype=float)
+
+    found = errors('re_deg')[~np.isnan(errors('re_deg'))]
+    te_found = errors('te_m')[~np.isnan(errors('te_m'))]
+    inside = np.array([s.box_inside_image for s in scores], dtype=bool)
+    with np.errstate(invalid='ignore'):
+        cm_deg = (errors('re_deg') < RE_THRESHOLD_DEG) & (errors('te_m') < TE_THRESHOLD_M)
+        add_ok = errors('add_error') < errors('add_threshold')
+    return {
+        'n': len(scores),
+        'detected': int(sum(s.detected for s in scores)),
+        'add_s_recall': float(add_ok.mean()) if scores else math.nan,
+        'cm5deg5': float(cm_deg.mean()) if scores else math.nan,
+        'proj5px': metrics.recall(errors('proj_px'), PROJ_THRESHOLD_PX),
+        're_median_deg': float(np.median(found)) if found.size else math.nan,
+        'te_median_mm': float(np.median(te_found) * 1e3) if te_found.size else math.nan,
+        'euler_mean_deg': float(np.nanmean(errors('euler_deg'))) if found.size else math.nan,
+        'te5cm_uncut': metrics.recall(errors('te_m')[inside], TE_THRESHOLD_M),
+    }
+
+
+def mean_over_objects(per_object: Mapping[str, Mapping[str, Any]],
+                      keys: Iterable[str]) -> dict[str, float]:
+    """Average each key over the objects that have a finite value for it."""
+    mean = {}
+    for key in keys:
+        values = [v[key] for v in per_object.values() if _finite(v.get(key))]
+        mean[key] = float(np.mean(values)) if values else math.nan
+    return mean
+
+
+def ground_truth_detections(instances: Iterable[GroundTruthInstance]) -> list[Detection]:
+    """Make detections with score 1 from ground-truth instances (the ``--boxes gt`` oracle)."""
+    return [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
+
+
+def evaluate(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
+             rotation: str = 'gt', min_visib: float = 0.1,
+             progress: bool = True) -> dict[str, Any]:
+    """Run the pipeline over BOP frames and score it (``score_frames``, ``make_report``)."""
+    scores, timings = score_frames(frames, pipeline, boxes, rotation, min_visib, progress)
+    return make_report(scores, timings, len(frames))
+
+
+def make_report(scores: Mapping[str, Sequence[InstanceScore]],
+                timings: Iterable[Mapping[str, float]], frame_count: int) -> dict[str, Any]:
+    """
+    Make the report dict of ``score_frames``' results.
+
+    Returns:
+        {'objects': {name: POSE_KEYS}, 'mean': {...}, 'timing_ms': {...}, 'frames': count}.
+
+    """
+    return dict(summarize_objects(scores), timing_ms=timing_summary(timings),
+                frames=frame_count)
+
+
+def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
+                 rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True
+                 ) -> tuple[dict[str, list[InstanceScore]], list[dict[str, float]]]:
+    """
+    Run the pipeline over BOP frames and score every counted instance.
+
+    Args:
+        frames: BopFrame list.
+        pipeline: a PosePipeline whose ``models`` are the objects to evaluate.
+        boxes: 'gt' (amodal ground-truth boxes of the counted instances) or 'detector'.
+        rotation: 'gt' (ground-truth rotations of the matched instances) or 'estimator'.
+        min_visib: instances less visible than this are not counted.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        ({name: [InstanceScore]}, [per-frame stage timings in ms]).
+
+    """
+    scores = {name: [] for name in pipeline.models}
+    timings = []
+    for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress):
+        counted = [i for i in frame.instances
+                   if i.object_name in pipeline.models and i.visib_fract >= min_visib]
+        image = frame.load_image()
+        detections = ground_truth_detections(counted) if boxes == 'gt' else None
+        if rotation == 'gt':
+            if detections is None:
+                detections = pipeline.detector(image)
+            detections = [d for d in detections if d.object_name in pipeline.models]
+            truths = _match_to_truth(detections, frame.instances)
+            keep = [k for k, t in enumerate(truths) if t is not None]
+            detections = [detections[k] for k in keep]
+            rotations = np.array([truths[k].rotation for k in keep]).reshape(-1, 3, 3)
+            result = pipeline.estimate(image, frame.camera, detections, rotations)
+        else:
+            result = pipeline.estimate(image, frame.camera, detections)
+        timings.append(result.timings_ms)
+        for score in score_frame(pipeline.models, counted, result.poses, frame.camera):
+            scores[score.object_name].append(score)
+    return scores, timings
+
+
+def score_frame(models: Mapping[str, ObjectModel], instances: Sequence[GroundTruthInstance],
+                poses: Sequence[PoseEstimate], camera: CameraIntrinsics) -> list[InstanceScore]:
+    """Score each counted instance of a frame against the pose that localises it (or none)."""
+    return [score_instance(models[instance.object_name], instance, pose, camera)
+            for instance, pose in zip(instances,
+                                      _poses_for_instances(models, poses, instances, camera))]
+
+
+def projected_box(model: ObjectModel, camera: CameraIntrinsics, rotation: npt.ArrayLike,
+                  translation: npt.ArrayLike) -> np.ndarray:
+    """Return the box [u_min, v_min, u_max, v_max] of the model projected at a pose."""
+    uv = camera.project(model.hull_points @ np.asarray(rotation).T + translation)
+    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
+
+
+def summarize_objects(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, Any]:
+    """Make the report's {'objects': {name: POSE_KEYS}, 'mean'} from {name: [InstanceScore]}."""
+    per_object = {name: summarize(s) for name, s in scores.items()}
+    return {'objects': per_object, 'mean': mean_over_objects(per_object, POSE_KEYS)}
+
+
+def _match_to_truth(detections, instances):
+    """Find the ground-truth instance each detection localises (or None), per object."""
+    truths = [None] * len(detections)
+    for name in {d.object_name for d in detections}:
+        det_idx = [k for k, d in enumerate(detections) if d.object_name == name]
+        gts = [i for i in instances if i.object_name == name]
+        matches = match_by_score([detections[k].box_uv for k in det_idx],
+                                 [detections[k].score for k in det_idx],
+                                 [g.box_uv for g in gts], MATCH_IOU)
+        for k, m in zip(det_idx, matches):
+            truths[k] = gts[m] if m >= 0 else None
+    return truths
+
+
+def _poses_for_instances(models, poses, instances, camera):
+    """
+    For each counted instance, the pose that localises it (or None).
+
+    Poses and instances are matched through the model's box projected at each pose, so
+    scoring needs nothing but poses: the offline pipeline and the ROS node (which publishes
+    poses only) are matched alike.
+    """
+    def box_of(name, rotation, translation):
+        return projected_box(models[name], camera, rotation, translation)
+
+    boxed_poses = [Detection(p.object_name, p.detection.score,
+                             box_of(p.object_name, p.rotation, p.translation)) for p in poses]
+    boxed_truths = [replace(i, box_uv=box_of(i.object_name, i.rotation, i.translation))
+                    for i in instances]
+    by_truth = {}
+    for pose, truth in zip(poses, _match_to_truth(boxed_poses, boxed_truths)):
+        if truth is not None:
+            by_truth[id(truth)] = pose
+    return [by_truth.get(id(t)) for t in boxed_truths]
+
+
+def _finite(value):
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+TABLE_COLUMNS = (('n', 'n', '{:d}'), ('detected', 'found', '{:d}'),
+                 ('add_s_recall', 'ADD(-S)', '{:.3f}'), ('cm5deg5', '5cm5deg', '{:.3f}'),
+                 ('proj5px', 'proj5px', '{:.3f}'), ('re_median_deg', 're_med_deg', '{:.2f}'),
+                 ('te_median_mm', 'te_med_mm', '{:.1f}'),
+                 ('euler_mean_deg', 'euler_deg', '{:.2f}'))
+
+
+def format_report(report: Mapping[str, Any]) -> str:
+    """Format the per-object table of a report, with the mean row and stage timings."""
+    lines = [format_object_table(report['objects'], report['mean'], TABLE_COLUMNS, 11)]
+    timing = ', '.join(f'{stage} {t["median"]:.2f} ms (p95 {t["p95"]:.2f})'
+                       for stage, t in report.get('timing_ms', {}).items())
+    if timing:
+        lines.append(f'timing per frame: {timing}')
+    return '\n'.join(lines)

@@ -1,0 +1,47 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""Plain-text tables of per-object figures, as ``bbpose eval`` prints them."""
+
+import math
+from typing import Mapping, Sequence
+
+# (key in the row dict, column title, format); '{:d}' columns print as integers.
+Column = tuple[str, str, str]
+
+
+def format_object_table(rows: Mapping[str, Mapping], mean: Mapping, columns: Sequence[Column],
+                        width: int) -> str:
+    """
+    Format one line per object and a final 'mean' line under a rule.
+
+    ``rows`` maps object names to {key: value}; a missing, NaN or infinite value prints '-'.
+    Every column is ``width`` characters wide, right-aligned; names take 12.
+    """
+    header = f'{"object":<12}' + ''.join(f'{title:>{width}}' for _, title, _ in columns)
+    lines = [header, '-' * len(header)]
+    for name, values in list(rows.items()) + [('mean', mean)]:
+        cells = []
+        for key, _, fmt in columns:
+            value = values.get(key)
+            if isinstance(value, (int, float)) and math.isfinite(value):
+                text = fmt.format(int(value) if fmt == '{:d}' else value)
+            else:
+                text = '-'
+            cells.append(f'{text:>{width}}')
+        if name == 'mean':
+            lines.append('-' * len(header))
+        lines.append(f'{name:<12}' + ''.join(cells))
+    return '\n'.join(lines)

@@ -1,0 +1,191 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The pose pipeline: image -> detections -> rotations -> translations -> poses.
+
+Each stage is a callable, so learned stages and ground-truth oracles plug in alike:
+
+* a detector ``detect(image_rgb) -> list[Detection]``;
+* a rotation estimator ``estimate(image_rgb, camera, detections) -> (N, 3, 3)``
+  model-to-camera (egocentric) rotations, one per detection, or several per detection
+  (``hypotheses.RotationHypotheses``), of which ``hypotheses.HypothesisSelector`` keeps
+  the one that best explains the box;
+* the Bounding Box Equation for the translations (``bbox_equation``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector, RotationHypotheses
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+
+
+@dataclass(frozen=True)
+class Detection:
+    """
+    A 2D detection of one object.
+
+    Attributes:
+        object_name: e.g. 'ape'.
+        score: detector confidence, 0..1 (1 for ground truth).
+        box_uv: (4,) amodal box [u_min, v_min, u_max, v_max], continuous pixel coordinates
+            (pixel centres at integers), the outer edges of the whole object's projection.
+
+    """
+
+    object_name: str
+    score: float
+    box_uv: np.ndarray
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """
+    A 6D pose: x_cam = rotation @ x_model + translation.
+
+    Attributes:
+        detection: the Detection it was estimated from.
+        rotation: (3, 3) model-to-camera rotation (egocentric).
+        translation: (3,) metres, camera optical frame.
+
+    """
+
+    detection: Detection
+    rotation: np.ndarray
+    translation: np.ndarray
+
+    @property
+    def object_name(self) -> str:
+        """Name of the object."""
+        return self.detection.object_name
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """The poses found in one frame and the time each stage took (milliseconds)."""
+
+    poses: list[PoseEstimate]
+    timings_ms: dict[str, float]
+
+
+class PosePipeline:
+    """
+    Runs the stages on one image at a time.
+
+    Args:
+        models: {name: ObjectModel} of the objects to report.
+        detector: callable image -> detections, or None when detections are always given.
+        rotation_estimator: callable (image, camera, detections) -> (N, 3, 3) rotations or
+            RotationHypotheses, or None when rotations are always given.
+        selection: how the Bounding Box Equation chooses its touching points
+            (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
+        max_iterations: bound on the re-selections of 'direct_then_perspective'.
+        hypothesis_selector: the HypothesisSelector that picks one of RotationHypotheses;
+            None: one with the default weight, made when hypotheses first come.
+
+    """
+
+    def __init__(self, models: Mapping[str, ObjectModel],
+                 detector: Callable[[np.ndarray], list[Detection]] | None = None,
+                 rotation_estimator: Callable[
+                     [np.ndarray, CameraIntrinsics, list[Detection]],
+                     np.ndarray | RotationHypotheses] | None = None,
+                 selection: str = 'tangent_planes', max_iterations: int = 10,
+                 hypothesis_selector: HypothesisSelector | None = None) -> None:
+        self.models = dict(models)
+        self._point_index = {name: i for i, name in enumerate(self.models)}
+        self._points = pad_point_sets([m.hull_points for m in self.models.values()])
+        self.detector = detector
+        self.rotation_estimator = rotation_estimator
+        self.selection = selection
+        self.max_iterations = max_iterations
+        self.hypothesis_selector = hypothesis_selector
+
+    def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                 detections: Iterable[Detection] | None = None,
+                 rotations: npt.ArrayLike | RotationHypotheses | None = None) -> FrameResult:
+        """
+        Estimate the poses of the configured objects in one frame.
+
+        Args:
+            image_rgb: (H, W, 3) uint8 image, H x W matching ``camera``.
+            camera: CameraIntrinsics of the image.
+            detections: optional list of Detection to use instead of the detector.
+            rotations: optional (N, 3, 3) rotations or RotationHypotheses to use instead of
+                the estimator.
+
+        Returns:
+            A FrameResult; poses keep the detections' order.
+
+        """
+        timings = {}
+        start = time.perf_counter()
+        if detections is None:
+            if self.detector is None:
+                raise InputError('the pipeline has no detector and no detections were given')
+            detections = self.detector(image_rgb)
+            timings['detector'] = _ms_since(start)
+        detections = [d for d in detections if d.object_name in self.models]
+        if rotations is None and detections:
+            if self.rotation_estimator is None:
+                raise InputError('the pipeline has no rotation estimator and no rotations '
+                                 'were given')
+            stage = time.perf_counter()
+            rotations = self.rotation_estimator(image_rgb, camera, detections)
+            timings['rotation'] = _ms_since(stage)
+        if isinstance(rotations, RotationHypotheses):
+            stage = time.perf_counter()
+            if self.hypothesis_selector is None:
+                self.hypothesis_selector = HypothesisSelector(self.models)
+            rotations = self.hypothesis_selector(camera, detections, rotations)
+            timings['hypothesis_selection'] = _ms_since(stage)
+        stage = time.perf_counter()
+        poses = self.translations(camera, detections, rotations)
+        timings['translation'] = _ms_since(stage)
+        timings['total'] = _ms_since(start)
+        return FrameResult(poses, timings)
+
+    def translations(self, camera: CameraIntrinsics, detections: Sequence[Detection],
+                     rotations: npt.ArrayLike) -> list[PoseEstimate]:
+        """Solve the Bounding Box Equation for all detections of a frame in one batch."""
+        if not detections:
+            return []
+        rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+        if len(rotations) != len(detections):
+            raise InputError(f'{len(rotations)} rotations for {len(detections)} detections')
+        points = self._points[[self._point_index[d.object_name] for d in detections]]
+        boxes = np.stack([d.box_uv for d in detections])
+        solution = solve_translations(rotations, boxes, points, camera.fx, camera.fy,
+                                      camera.cx, camera.cy,
+                                      selection=self.selection,
+                                      max_iterations=self.max_iterations)
+        return [PoseEstimate(d, r, t)
+                for d, r, t in zip(detections, rotations, solution.translations)]
+
+
+def _ms_since(start):
+    return (time.perf_counter() - start) * 1e3

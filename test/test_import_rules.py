@@ -1,0 +1,114 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+The package's import rules, read from the source (AST): layers point one way.
+
+cli -> bags, ros -> core; the core imports no ROS and nothing of ros/, bags/ or cli/; ros/
+imports nothing of cli/ or bags/; in the core, training may use synth but never the other
+way, and the running node reaches nothing of core/eval, core/training, core/synth or cli
+through any chain of imports.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).parents[1] / 'bbpose_ros'
+ROS_ROOTS = ('rclpy', 'rosidl_runtime_py', 'rcl_interfaces', 'builtin_interfaces')
+
+
+def _module_name(path):
+    parts = path.relative_to(PACKAGE.parent).with_suffix('').parts
+    return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
+
+
+def _imports(path):
+    """Return every module name the file imports, at any depth (lazy imports count)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+            names.update(f'{node.module}.{alias.name}' for alias in node.names)
+    return names
+
+
+MODULES = {_module_name(p): _imports(p) for p in sorted(PACKAGE.rglob('*.py'))}
+
+
+def _internal(names):
+    """Keep the package's own modules among ``names`` (``from a import b`` may name one)."""
+    return {n for n in names if n in MODULES}
+
+
+def _is_ros(name):
+    root = name.split('.')[0]
+    return root in ROS_ROOTS or root.endswith('_msgs')
+
+
+def _violations(prefix, forbidden):
+    return sorted(f'{module} imports {name}'
+                  for module, names in MODULES.items() if _in(module, prefix)
+                  for name in names if any(_in(name, f) for f in forbidden))
+
+
+def _in(name, prefix):
+    return name == prefix or name.startswith(prefix + '.')
+
+
+def test_the_scan_sees_the_package():
+    assert 'bbpose_ros.ros.node' in MODULES
+    assert 'bbpose_ros.core.pipeline.estimators' in _internal(MODULES['bbpose_ros.ros.node'])
+    assert len(MODULES) >= 60
+
+
+@pytest.mark.parametrize('layer, forbidden', [
+    ('bbpose_ros.core', ('bbpose_ros.ros', 'bbpose_ros.bags', 'bbpose_ros.cli')),
+    ('bbpose_ros.ros', ('bbpose_ros.bags', 'bbpose_ros.cli')),
+    ('bbpose_ros.bags', ('bbpose_ros.ros', 'bbpose_ros.cli')),
+    ('bbpose_ros.core.synth', ('bbpose_ros.core.training', 'bbpose_ros.core.eval')),
+    ('bbpose_ros.core.render', ('bbpose_ros.core.synth', 'bbpose_ros.core.training')),
+    ('bbpose_ros.core.nets', ('bbpose_ros.core.pipeline', 'bbpose_ros.core.eval',
+                              'bbpose_ros.core.training')),
+    ('bbpose_ros.core.pipeline', ('bbpose_ros.core.eval', 'bbpose_ros.core.training',
+                                  'bbpose_ros.core.synth')),
+    ('bbpose_ros.core.geometry', ('bbpose_ros.core.data', 'bbpose_ros.core.nets',
+                                  'bbpose_ros.core.pipeline', 'bbpose_ros.core.eval')),
+])
+def test_layers_import_one_way(layer, forbidden):
+    assert _violations(layer, forbidden) == []
+
+
+def test_core_and_bags_import_no_ros():
+    offenders = sorted(f'{module} imports {name}' for module, names in MODULES.items()
+                       if _in(module, 'bbpose_ros.core') or _in(module, 'bbpose_ros.bags')
+                       for name in names if _is_ros(name))
+    assert offenders == []
+
+
+def test_the_node_reaches_no_offline_code():
+    reached, todo = set(), ['bbpose_ros.ros.node']
+    while todo:
+        module = todo.pop()
+        if module not in reached:
+            reached.add(module)
+            todo.extend(_internal(MODULES[module]))
+    offline = ('bbpose_ros.core.eval', 'bbpose_ros.core.training', 'bbpose_ros.core.synth',
+               'bbpose_ros.cli', 'bbpose_ros.bags')
+    assert sorted(m for m in reached if any(_in(m, o) for o in offline)) == []
+    assert 'bbpose_ros.core.viz' in reached
