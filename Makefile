@@ -65,7 +65,7 @@ photos:
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
 
 # Reproduce the shipped weights (hours on 2 CPU cores; every stage resumes if interrupted).
-# Caches and runs live in $(CACHE); see bbpose_ros/weights/README.md.
+# Caches and runs live in $(CACHE); see docs/training.md.
 weights: setup photos
 	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes --seed 2 \
 		--scenes 4000 --backgrounds $(PHOTOS)

@@ -75,12 +75,12 @@ PARAMETERS = {
     'max_instances': (1, _descriptor(
         'Most instances reported per object and frame.', int_range=(1, 100))),
     'box_consistency_weight': (DEFAULT_BOX_CONSISTENCY_WEIGHT, _descriptor(
-        'With a multi-hypothesis Q-Net (the shipped one has 8), how much the Bounding Box '
+        'With a multi-hypothesis Q-Net, how much the Bounding Box '
         'Equation misfit (largest side residual / longest box side) counts against the '
         'log-probability in choosing a rotation; 0: the best-scored one.',
         float_range=(0.0, 1000.0))),
     'inference_backend': ('onnxruntime', _descriptor(
-        'What runs the networks: onnxruntime (CPU only, the fastest there) or torch.')),
+        'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).')),
     'device': ('cpu', _descriptor(
         'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch backend).')),
     'inference_threads': (0, _descriptor(

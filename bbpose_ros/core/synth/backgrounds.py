@@ -88,7 +88,7 @@ class PhotoBackgrounds:
 
     ``paths`` are image files (JPEG, PNG, WebP); they are read lazily, once per process, and
     shrunk to at most ``max_side`` pixels. Any folder of photographs works, e.g. Debian's
-    wallpaper packages (see bbpose_ros/weights/README.md).
+    wallpaper packages (see docs/training.md).
     """
 
     SUFFIXES = ('.jpg', '.jpeg', '.png', '.webp')

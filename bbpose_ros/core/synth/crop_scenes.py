@@ -17,14 +17,13 @@ Object-centred synthetic crops for Q-Net: the crop the estimator would cut, rend
 
 Rendering whole 640x480 scenes on the CPU gives far too few views of SO(3) for Q-Net, which
 then memorises them instead of generalising. A crop needs only a small image, so it renders
-many times faster: the
-object is posed in the full camera exactly as in ``SyntheticScenes`` (pixel, distance,
-LM-O-like viewpoint), its amodal box is jittered as a detector would, and only the square
-crop around that box is rendered, through ``CameraIntrinsics.cropped``. Neighbouring meshes
-and occluders are posed in the same camera, the background is cut from a full-frame
-procedural background or photograph at the crop's scale, camera effects are applied at the crop's
-native resolution (a 40-pixel box stays blurry after resizing), and parts outside the frame
-are grey, as ``extract_crops`` fills them.
+many times faster: the object is posed in the full camera exactly as in ``SyntheticScenes``
+(pixel, distance, LM-O-like viewpoint), its amodal box is jittered as a detector would, and
+only the square crop around that box is rendered, through ``CameraIntrinsics.cropped``.
+Neighbouring meshes and occluders are posed in the same camera, the background is cut from
+a full-frame procedural background or photograph at the crop's scale, camera effects are
+applied at the crop's native resolution (a 40-pixel box stays blurry after resizing), and
+parts outside the frame are grey, as ``extract_crops`` fills them.
 """
 
 from collections.abc import Mapping
