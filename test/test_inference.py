@@ -58,13 +58,16 @@ def test_folded_copy_computes_the_same_function():
 
 
 @pytest.mark.parametrize('batch', [1, 3, 8])
-@pytest.mark.parametrize('first_stride, hypotheses', [(1, 1), (2, 1), (2, 8)])
-def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride, hypotheses):
-    net = _trained_looking(QNet(QNetConfig(OBJECTS, first_stride=first_stride,
-                                           hypotheses=hypotheses)))
-    example = (_images(2, 48, 48), np.array([0, 1]))     # traced with batch 2
+@pytest.mark.parametrize('first_stride, hypotheses, backbone', [
+    (1, 1, 'scratch'), (2, 1, 'scratch'), (2, 8, 'scratch'), (1, 8, 'lite0')])
+def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride, hypotheses,
+                                                      backbone):
+    size = 64 if backbone == 'lite0' else 48
+    net = _trained_looking(QNet(QNetConfig(OBJECTS, crop_size=size, first_stride=first_stride,
+                                           hypotheses=hypotheses, backbone=backbone)))
+    example = (_images(2, size, size), np.array([0, 1]))     # traced with batch 2
     onnx = make_runner(net, example, 'onnxruntime', threads=1, dynamic_batch=True)
-    crops, index = _images(batch, 48, 48), RNG.integers(0, len(OBJECTS), batch)
+    crops, index = _images(batch, size, size), RNG.integers(0, len(OBJECTS), batch)
     with torch.inference_mode():
         expected = net(images_to_input(torch.from_numpy(crops)), torch.from_numpy(index))
     torch.testing.assert_close(onnx(crops, index), expected, atol=1e-5, rtol=0)
@@ -72,8 +75,9 @@ def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride, hypot
                                atol=1e-5, rtol=0)
 
 
-def test_onnxruntime_detector_matches_torch():
-    net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS)))
+@pytest.mark.parametrize('backbone', ['scratch', 'lite0'])
+def test_onnxruntime_detector_matches_torch(backbone):
+    net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS, backbone=backbone)))
     width, height = net.config.input_size
     image = _images(1, height, width)
     with torch.inference_mode():

@@ -34,6 +34,7 @@ from bbpose_ros.core.training.detector_training import DetectorBatches, Detector
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
                                                     QNetTrainSettings)
+from bbpose_ros.core.training.runs import parameter_groups
 from bbpose_ros.core.training.verifier_training import (candidate_targets, CandidateCrops,
                                                         verifier_step, verifier_validation,
                                                         VerifierBatches, VerifierTrainSettings)
@@ -86,6 +87,35 @@ def test_run_loop_checkpoints_and_resumes(tmp_path):
     assert exported == [5, 10, 15, 20]
     assert (tmp_path / 'loss.png').stat().st_size > 1000
     assert not (tmp_path / 'sim_to_real.png').exists()     # no real-frame figures logged
+
+
+def test_a_pretrained_trunk_learns_slower_on_its_imagenet_statistics(tmp_path):
+    net = CenterBoxNet(DetectorConfig(OBJECTS[:2], backbone='lite0'))
+    trunk = {id(p) for p in net.trunk.parameters()}
+    head, scaled = parameter_groups(net, 0.1)
+    assert scaled['lr_scale'] == 0.1 and {id(p) for p in scaled['params']} == trunk
+    assert not trunk & {id(p) for p in head['params']}
+    optimizer = torch.optim.AdamW([head, scaled], 1e-3)
+
+    def step(_):
+        heat, sides = net(torch.rand(2, 3, 64, 64))
+        loss = heat.square().mean() + sides.square().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        return float(loss.detach())
+
+    statistics = net.trunk._bn0.running_mean.clone()
+    run_loop(tmp_path, net, optimizer, step, 3, None, 1e-3, every=3, progress=False)
+    assert optimizer.param_groups[1]['lr'] == pytest.approx(0.1 * optimizer.param_groups[0]['lr'])
+    assert torch.equal(net.trunk._bn0.running_mean, statistics)       # ImageNet's, kept
+    assert net.training and not net.trunk._bn0.training and net.merge[0][1].training
+
+    frozen = CenterBoxNet(DetectorConfig(OBJECTS[:2], backbone='lite0'))
+    groups = parameter_groups(frozen, 0.0)
+    assert len(groups) == 1 and not any(p.requires_grad for p in frozen.trunk.parameters())
+    assert parameter_groups(CenterBoxNet(DetectorConfig(OBJECTS[:2])), 0.1)[0].keys() == {
+        'params'}
 
 
 def test_real_frame_figures_get_a_sim_to_real_chart(tmp_path):

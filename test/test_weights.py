@@ -107,15 +107,33 @@ def test_detector_with_second_stage_round_trip(tmp_path):
         torch.testing.assert_close(loaded.verifier.outputs(crops), net.verifier.outputs(crops))
 
 
-def test_detector_file_without_second_stage_fields_loads_as_one_stage(tmp_path):
+def test_detector_file_without_newer_fields_loads_as_one_scratch_stage(tmp_path):
     path = tmp_path / 'detector.pt'
     save_weights(path, CenterBoxNet(DetectorConfig(OBJECTS)), 'detector', TRAINING)
     payload = torch.load(path, weights_only=True)
     for key in ('verifier_channels', 'verifier_crop_size', 'verifier_context', 'candidates',
-                'candidate_threshold'):
+                'candidate_threshold', 'backbone', 'head_channels'):
         del payload['metadata']['architecture'][key]     # as files written before them
     torch.save(payload, path)
-    assert load_network(path, 'detector', OBJECTS).verifier is None
+    loaded = load_network(path, 'detector', OBJECTS)
+    assert loaded.verifier is None and loaded.config.backbone == 'scratch'
+
+
+@pytest.mark.parametrize('kind', ['detector', 'qnet'])
+def test_a_pretrained_trunk_travels_in_the_weight_file(tmp_path, kind):
+    """A 'lite0' network loads from its own file alone: no ImageNet file is read."""
+    if kind == 'detector':
+        net = CenterBoxNet(DetectorConfig(OBJECTS, backbone='lite0'))
+    else:
+        net = QNet(QNetConfig(OBJECTS, crop_size=64, backbone='lite0', hypotheses=4))
+    net.load_pretrained()
+    net.eval()
+    path = tmp_path / f'{kind}.pt'
+    save_weights(path, net, kind, TRAINING)
+    loaded = load_network(path, kind, OBJECTS)
+    assert loaded.config.backbone == 'lite0'
+    for key, value in net.state_dict().items():
+        assert torch.equal(loaded.state_dict()[key], value), key
 
 
 def test_shipped_weights_load():

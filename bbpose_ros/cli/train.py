@@ -78,6 +78,7 @@ def add_parser(subparsers):
         _budget(stage_parser)
         stage_parser.set_defaults(func=func)
     _extra_cache_option(sub.choices['detector'], 'scene')
+    _backbone_options(sub.choices['detector'])
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
     verifier = sub.add_parser('verifier', help="train the detector's second stage")
@@ -90,6 +91,15 @@ def add_parser(subparsers):
     _budget(fig3, steps=3000)
     _qnet_options(fig3)
     fig3.set_defaults(func=run_fig3)
+
+
+def _backbone_options(parser):
+    parser.add_argument('--backbone', choices=('scratch', 'lite0'), default='scratch',
+                        help="'lite0': EfficientNet-Lite0 from ImageNet with a small head; "
+                             "'scratch': the plain conv stack (default %(default)s)")
+    parser.add_argument('--trunk-lr-scale', type=float, default=None,
+                        help="the 'lite0' trunk's learning rate / the head's (0 freezes it; "
+                             'default 0.1)')
 
 
 def _backgrounds_option(parser):
@@ -153,6 +163,7 @@ def _qnet_options(parser):
                         help='train only on crops rolled at most this much about the optical '
                              'axis (an upright-object prior; default: all)')
     _extra_cache_option(parser, 'crop')
+    _backbone_options(parser)
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
@@ -183,7 +194,7 @@ def _extra_cache_option(parser, kind):
 
 
 def _settings(settings, args):
-    for name in ('batch', 'lr'):
+    for name in ('batch', 'lr', 'trunk_lr_scale'):
         if getattr(args, name) is not None:
             setattr(settings, name, getattr(args, name))
     return settings
@@ -237,8 +248,10 @@ def run_detector(args):
     from bbpose_ros.core.training.detector_training import DetectorTrainSettings
     from bbpose_ros.core.training.runs import train_detector
     cache, models = _load(args)
-    config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size))
-    train_detector(cache, config, _settings(DetectorTrainSettings(), args), args.run_dir,
+    config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size),
+                            backbone=args.backbone)
+    settings = _settings(DetectorTrainSettings(), args)
+    train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
                    args.every)
     return 0
@@ -280,9 +293,13 @@ def _qnet_setup(args):
     if args.hypotheses < 1:
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
     cache, models = _load(args)
-    config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
-                        first_stride=args.first_stride, rotation_target=args.rotation_target,
-                        sharing=args.sharing, hypotheses=args.hypotheses)
+    try:
+        config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
+                            first_stride=args.first_stride,
+                            rotation_target=args.rotation_target, sharing=args.sharing,
+                            hypotheses=args.hypotheses, backbone=args.backbone)
+    except ValueError as err:
+        raise InputError(f'invalid Q-Net options: {err}') from None
     settings = _settings(QNetTrainSettings(sign_invariant=args.sign_invariant,
                                            max_inplane_deg=args.max_inplane_deg), args)
     if args.box_sigma_from is not None:

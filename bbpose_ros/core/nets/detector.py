@@ -17,8 +17,8 @@ A compact CenterNet-style 2D detector that returns amodal boxes, trained from sc
 
 Design, and why:
 
-* The 640x480 frame is downscaled to 320x240 (``input_size``): LM-O objects span about
-  40-250 px at full size, still 20-125 px after halving, and the convolutions cost a quarter.
+* The 640x480 frame is downscaled to 320x240 (``input_size``): LM-O objects are large
+  enough to stay well resolved after halving, and the convolutions cost a quarter.
 * A plain stride-2 conv stack (BN + ReLU) down to stride 16, one dilated conv for a receptive
   field larger than the biggest object, and one top-down merge back to stride 8 (a 40x30
   grid). No anchors and no NMS beyond a 3x3 max-pool: one class heatmap per object, as in
@@ -28,7 +28,7 @@ Design, and why:
   heatmap peak sits at the amodal box centre, so a half-hidden object still gets its full
   box, which the Bounding Box Equation needs.
 * A few hundred thousand parameters with the default ``channels``, sized for the
-  detector's 15 ms budget on 2 CPU cores with ``channels_last`` and
+  detector's budget on 2 CPU cores with ``channels_last`` and
   ``torch.inference_mode`` (``bbpose bench`` checks the budget).
 * An optional second stage, as in MTCNN's cascade (``core.nets.verifier``): the
   ``candidates`` highest peaks of each class are re-scored by a small classifier on a crop
@@ -44,10 +44,14 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
+from bbpose_ros.core.nets.efficientnet_lite import BLOCK_CHANNELS, EfficientNetLite0
 from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.verifier import CandidateVerifier
 
 HEATMAP_PRIOR = 0.05   # initial peak probability (CenterNet's focal-loss bias init)
+BACKBONES = ('scratch', 'lite0')
+# Lite0 blocks whose outputs the 'lite0' detector merges: stride 8 (40 ch), stride 16 (112 ch).
+LITE0_TAPS = (4, 10)
 
 
 @dataclass(frozen=True)
@@ -60,12 +64,16 @@ class DetectorConfig:
         input_size: (width, height) the frame is resized to before the network.
         channels: widths of the stride 2, 4, 8 and 16 stages.
         stride: output grid stride in input pixels (fixed by the architecture: 8).
-        verifier_channels: widths of the second stage's four conv stages; () (older files
-            too): no second stage, the heatmap peaks are the detections.
+        verifier_channels: widths of the second stage's four conv stages; () (also files
+            without this field): no second stage, the heatmap peaks are the detections.
         verifier_crop_size: side of the second stage's crops, in pixels.
         verifier_context: crop side / longest side of the candidate's box.
         candidates: peaks per class the second stage re-scores.
         candidate_threshold: lowest heatmap peak probability passed to the second stage.
+        backbone: 'scratch' (the plain conv stack of ``channels``, trained from random
+            weights; older files) or 'lite0' (EfficientNet-Lite0's first 11 blocks,
+            initialised from ImageNet when trained, with a head of ``head_channels``).
+        head_channels: width of the 'lite0' head's merged stride-8 features.
 
     """
 
@@ -78,6 +86,13 @@ class DetectorConfig:
     verifier_context: float = 1.2
     candidates: int = 3
     candidate_threshold: float = 0.02
+    backbone: str = 'scratch'
+    head_channels: int = 64
+
+    def __post_init__(self) -> None:
+        if self.backbone not in BACKBONES:
+            raise ValueError(f'unknown detector backbone {self.backbone!r}; '
+                             f'choose one of {", ".join(BACKBONES)}')
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (tuples become lists)."""
@@ -118,16 +133,24 @@ class CenterBoxNet(nn.Module):
     def __init__(self, config: DetectorConfig) -> None:
         super().__init__()
         self.config = config
-        c1, c2, c3, c4 = config.channels
-        self.stage1 = _conv(3, c1, stride=2)
-        self.stage2 = _conv(c1, c2, stride=2)
-        self.stage3 = nn.Sequential(_conv(c2, c3, stride=2), _conv(c3, c3))
-        self.stage4 = nn.Sequential(_conv(c3, c4, stride=2), _conv(c4, c4),
-                                    _conv(c4, c4, dilation=2))
-        self.lateral = nn.Conv2d(c4, c3, 1)
-        self.merge = _conv(c3, c3)
-        self.heatmap = nn.Conv2d(c3, len(config.objects), 1)
-        self.box = nn.Conv2d(c3, 4, 1)
+        if config.backbone == 'lite0':
+            width = config.head_channels
+            self.trunk = EfficientNetLite0(blocks=LITE0_TAPS[-1] + 1)
+            self.lateral_fine = nn.Conv2d(BLOCK_CHANNELS[LITE0_TAPS[0]], width, 1)
+            self.lateral = nn.Conv2d(BLOCK_CHANNELS[LITE0_TAPS[1]], width, 1)
+            self.merge = nn.Sequential(_conv(width, width), _conv(width, width))
+        else:
+            c1, c2, c3, c4 = config.channels
+            width = c3
+            self.stage1 = _conv(3, c1, stride=2)
+            self.stage2 = _conv(c1, c2, stride=2)
+            self.stage3 = nn.Sequential(_conv(c2, c3, stride=2), _conv(c3, c3))
+            self.stage4 = nn.Sequential(_conv(c3, c4, stride=2), _conv(c4, c4),
+                                        _conv(c4, c4, dilation=2))
+            self.lateral = nn.Conv2d(c4, c3, 1)
+            self.merge = _conv(c3, c3)
+        self.heatmap = nn.Conv2d(width, len(config.objects), 1)
+        self.box = nn.Conv2d(width, 4, 1)
         prior = torch.tensor(HEATMAP_PRIOR)
         nn.init.constant_(self.heatmap.bias, float(torch.log(prior / (1 - prior))))
         nn.init.zeros_(self.box.bias)
@@ -138,12 +161,20 @@ class CenterBoxNet(nn.Module):
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Heatmap logits and log box sides on the stride-8 grid."""
-        x = self.stage2(self.stage1(normalize_input(images)))
-        fine = self.stage3(x)
-        coarse = self.lateral(self.stage4(fine))
+        if self.config.backbone == 'lite0':
+            fine, coarse = self.trunk.forward_features(images, LITE0_TAPS)
+            fine, coarse = self.lateral_fine(fine), self.lateral(coarse)
+        else:
+            fine = self.stage3(self.stage2(self.stage1(normalize_input(images))))
+            coarse = self.lateral(self.stage4(fine))
         up = F.interpolate(coarse, size=fine.shape[-2:], mode='nearest')
         features = self.merge(fine + up)
         return self.heatmap(features), self.box(features)
+
+    def load_pretrained(self) -> None:
+        """Initialise a 'lite0' trunk from ImageNet (the pretrained wheel); no-op otherwise."""
+        if self.config.backbone == 'lite0':
+            self.trunk.load_imagenet()
 
 
 class PeakOutputs(nn.Module):

@@ -19,7 +19,7 @@ The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling 
 then fully connected layers, then the q-normalization layer. Batch normalisation after each
 convolution speeds up CPU training; it costs next to nothing at inference (it is folded into
 the convolution). Widths (``QNetConfig.channels``, stored in each weight file) are kept
-small so that all the crops of a frame (up to 8 at 48x48) run within Q-Net's 2 ms budget on
+small so that all the crops of a frame (up to 8 at 48x48) run within Q-Net's budget on
 2 CPU cores.
 
 Options (``QNetConfig``), the paper's version being the default where it has one:
@@ -34,6 +34,11 @@ Options (``QNetConfig``), the paper's version being the default where it has one
   of being followed by a max-pool: three quarters of its multiply-adds go, and with them
   the slowest kernel at inference (its 3 input channels use the vector units poorly);
 * ``q_normalization`` True (paper) or False (only for the paper's Fig. 3 comparison);
+* ``backbone`` 'scratch' (the paper's small conv stack above, trained from random weights)
+  or 'lite0': EfficientNet-Lite0's first 11 blocks (stride 16, ImageNet-pretrained when
+  trained, ``core.nets.efficientnet_lite``), a 1x1 reduction to ``channels[-1]`` and the
+  same hidden FC layer: features learned on real photographs carry over from renders to
+  camera images far better than features learned on renders alone;
 * ``hypotheses`` 1 (paper) or H > 1: each head gives H quaternions and H scores, trained
   winner-takes-all (``quaternion.multi_hypothesis_loss``) and the best-scored one is the
   output. One regressed quaternion lands between the views a crop cannot tell apart (a
@@ -48,10 +53,15 @@ from typing import Any, Self
 import torch
 from torch import nn
 
+from bbpose_ros.core.nets.efficientnet_lite import (BLOCK_CHANNELS, BLOCK_STRIDES,
+                                                    EfficientNetLite0)
 from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.quaternion import QNormalization
 
 ROTATION_TARGETS = ('egocentric', 'allocentric')
+BACKBONES = ('scratch', 'lite0')
+LITE0_BLOCKS = 11       # EfficientNet-Lite0 up to stride 16 (112 channels)
+LITE0_STRIDE = BLOCK_STRIDES[LITE0_BLOCKS - 1]
 SHARING_MODES = ('shared', 'per_object')
 
 
@@ -73,6 +83,8 @@ class QNetConfig:
         q_normalization: whether the q-normalization layer ends the network.
         dropout: dropout probability after the hidden FC layer (training only).
         hypotheses: quaternions per head; the output is the best-scored one.
+        backbone: 'scratch' (conv + max-pool stages of ``channels``) or 'lite0'
+            (EfficientNet-Lite0 to stride 16, then a 1x1 convolution to ``channels[-1]``).
 
     """
 
@@ -87,6 +99,7 @@ class QNetConfig:
     q_normalization: bool = True
     dropout: float = 0.2
     hypotheses: int = 1
+    backbone: str = 'scratch'
 
     def __post_init__(self) -> None:
         if self.rotation_target not in ROTATION_TARGETS:
@@ -97,9 +110,16 @@ class QNetConfig:
             raise ValueError(f'first_stride must be 1 or 2, not {self.first_stride}')
         if self.hypotheses < 1:
             raise ValueError(f'hypotheses must be at least 1, not {self.hypotheses}')
-        if self.crop_size % 2 ** len(self.channels):
+        if self.backbone not in BACKBONES:
+            raise ValueError(f'backbone must be one of {BACKBONES}, not {self.backbone!r}')
+        if self.crop_size % self.feature_stride:
             raise ValueError(f'crop_size {self.crop_size} is not divisible by '
-                             f'2^{len(self.channels)}')
+                             f'{self.feature_stride}')
+
+    @property
+    def feature_stride(self) -> int:
+        """Crop pixels per cell of the last feature map."""
+        return LITE0_STRIDE if self.backbone == 'lite0' else 2 ** len(self.channels)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (tuples become lists)."""
@@ -117,8 +137,29 @@ class QNetConfig:
         return cls(**data)
 
 
+class _LiteFeatures(nn.Module):
+    """EfficientNet-Lite0 to stride 16 on 0..1 RGB crops, then 1x1 conv + BN + ReLU."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.trunk = EfficientNetLite0(blocks=LITE0_BLOCKS)
+        self.reduce = nn.Sequential(
+            nn.Conv2d(BLOCK_CHANNELS[LITE0_BLOCKS - 1], channels, 1, bias=False),
+            nn.BatchNorm2d(channels), nn.ReLU(inplace=True))
+
+    def forward(self, crops: torch.Tensor) -> torch.Tensor:
+        """(N, 3, S, S) float RGB in 0..1 -> (N, channels, S / 16, S / 16)."""
+        return self.reduce(self.trunk.forward_features(crops, (LITE0_BLOCKS - 1,))[0])
+
+
 def _trunk(config):
-    """Conv + BN + ReLU + max-pool stages, flatten, hidden FC + ReLU + dropout."""
+    """Feature stages (conv + max-pool, or Lite0), flatten, hidden FC + ReLU + dropout."""
+    side = config.crop_size // config.feature_stride
+    if config.backbone == 'lite0':
+        width = config.channels[-1]
+        return nn.Sequential(_LiteFeatures(width), nn.Flatten(),
+                             nn.Linear(width * side * side, config.fc_size),
+                             nn.ReLU(inplace=True), nn.Dropout(config.dropout))
     layers, width = [], 3
     for stage, channels in enumerate(config.channels):
         strided = stage == 0 and config.first_stride == 2
@@ -127,7 +168,6 @@ def _trunk(config):
                    nn.BatchNorm2d(channels), nn.ReLU(inplace=True)]
         layers += [] if strided else [nn.MaxPool2d(2)]
         width = channels
-    side = config.crop_size // 2 ** len(config.channels)
     layers += [nn.Flatten(), nn.Linear(width * side * side, config.fc_size),
                nn.ReLU(inplace=True), nn.Dropout(config.dropout)]
     return nn.Sequential(*layers)
@@ -157,12 +197,20 @@ class QNet(nn.Module):
         self._init_weights()
 
     def _init_weights(self):
-        """Xavier weights and zero biases, as in the paper."""
+        """Xavier weights and zero biases, as in the paper (a Lite0 trunk keeps its own)."""
+        lite = {id(part) for module in self.modules() if isinstance(module, EfficientNetLite0)
+                for part in module.modules()}
         for module in self.modules():
-            if isinstance(module, (nn.Conv2d, nn.Linear)):
+            if isinstance(module, (nn.Conv2d, nn.Linear)) and id(module) not in lite:
                 nn.init.xavier_uniform_(module.weight)
                 if module.bias is not None:
                     nn.init.zeros_(module.bias)
+
+    def load_pretrained(self) -> None:
+        """Initialise 'lite0' trunks from ImageNet (the pretrained wheel); no-op otherwise."""
+        for module in self.modules():
+            if isinstance(module, EfficientNetLite0):
+                module.load_imagenet()
 
     def forward(self, crops: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """
@@ -195,7 +243,7 @@ class QNet(nn.Module):
 
     def _heads(self, crops, object_index):
         """Each crop's own head output (N, head_width), before q-normalization."""
-        x = normalize_input(crops)
+        x = crops if self.config.backbone == 'lite0' else normalize_input(crops)
         if len(self.trunks) == 1:
             features = self.trunks[0](x)
         else:

@@ -54,6 +54,7 @@ class DetectorTrainSettings:
     val_fraction: float = 0.05
     augment: float = 1.0
     train_crop: tuple[int, int] = (192, 160)
+    trunk_lr_scale: float = 0.1
 
 
 def detector_classes(config: DetectorConfig, cache: TrainingCache) -> np.ndarray:

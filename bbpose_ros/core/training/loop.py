@@ -142,7 +142,7 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
     while step < steps and (seconds is None or time.monotonic() - start < seconds):
         lr = cosine_lr(base_lr, step, steps)
         for group in optimizer.param_groups:
-            group['lr'] = lr
+            group['lr'] = lr * group.get('lr_scale', 1.0)
         network.train()
         losses.append(train_step(step))
         step += 1

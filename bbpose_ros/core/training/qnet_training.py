@@ -16,9 +16,10 @@
 Q-Net training on a rendered cache: jittered crops, symmetric-aware Dot Product Loss.
 
 Each step draws ``batch`` instances (visible fraction >= ``min_visib``), jitters their amodal
-boxes as a detector would (``box_sigma``: per-side error / box size, measured on the
-detector), cuts the square crop the estimator would cut, applies photometric augmentation
-and regresses the ground-truth quaternion (wxyz, q0 >= 0), egocentric or allocentric.
+boxes as a detector would (``box_sigma``: per-side error / box size, the ``side_sigma`` a
+detector's validation reports), cuts the square crop the estimator would cut, applies
+photometric augmentation and regresses the ground-truth quaternion (wxyz, q0 >= 0),
+egocentric or allocentric.
 Validation uses the last ``val_fraction`` of the scenes, never seen in training.
 
 ``max_inplane_deg`` (not the paper's) trains only on instances whose roll about the optical axis
@@ -66,6 +67,7 @@ class QNetTrainSettings:
     augment: float = 1.0
     sign_invariant: bool = False
     max_inplane_deg: float | None = None
+    trunk_lr_scale: float = 0.1
 
 
 class QNetBatches:

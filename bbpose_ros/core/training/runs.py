@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
+from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
@@ -114,9 +115,11 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation.
     """
     _prepare(run_dir, seed, threads)
-    network = QNet(config).to(memory_format=torch.channels_last)
-    optimizer = torch.optim.AdamW(network.parameters(), settings.lr,
-                                  weight_decay=settings.weight_decay)
+    network = QNet(config)
+    network.load_pretrained()
+    network = network.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
+                                  settings.lr, weight_decay=settings.weight_decay)
     batches = QNetBatches(cache, config, models, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
@@ -132,6 +135,25 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     return network
 
 
+def parameter_groups(network, trunk_lr_scale):
+    """
+    Optimizer groups: pretrained Lite0 trunks at ``trunk_lr_scale`` times the rate (0: frozen).
+
+    ``run_loop`` multiplies a group's scheduled rate by its ``lr_scale``.
+    """
+    trunk = [p for m in network.modules() if isinstance(m, EfficientNetLite0)
+             for p in m.parameters()]
+    if not trunk:
+        return [{'params': list(network.parameters())}]
+    trunk_ids = {id(p) for p in trunk}
+    rest = [p for p in network.parameters() if id(p) not in trunk_ids]
+    if trunk_lr_scale <= 0:
+        for parameter in trunk:
+            parameter.requires_grad_(False)
+        return [{'params': rest}]
+    return [{'params': rest}, {'params': trunk, 'lr_scale': trunk_lr_scale}]
+
+
 def _qnet_figures(network, batches, real_crops):
     figures = qnet_validation(network, batches)
     if real_crops is not None:
@@ -144,11 +166,18 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
                    seconds: float | None = None, seed: int = 0, threads: int | None = None,
                    export: Path | str | None = None, every: int = 500,
                    progress: bool = True) -> CenterBoxNet:
-    """Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise."""
+    """
+    Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise.
+
+    A 'lite0' backbone starts from ImageNet and learns at ``settings.trunk_lr_scale`` times
+    the head's rate (0: frozen).
+    """
     _prepare(run_dir, seed, threads)
-    network = CenterBoxNet(config).to(memory_format=torch.channels_last)
-    optimizer = torch.optim.AdamW(network.parameters(), settings.lr,
-                                  weight_decay=settings.weight_decay)
+    network = CenterBoxNet(config)
+    network.load_pretrained()
+    network = network.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
+                                  settings.lr, weight_decay=settings.weight_decay)
     batches = DetectorBatches(cache, config, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
