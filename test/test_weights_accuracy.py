@@ -15,8 +15,8 @@
 """
 The shipped weights on a few real LM-O frames: a documented accuracy floor.
 
-The floors sit well below what the shipped files measured on all 100 frames (see the numbers
-in the comments), so the test catches a broken or swapped weight file, not noise.
+The floors sit well below what the shipped files measure, so the test catches a broken or
+swapped weight file, not noise.
 """
 
 import numpy as np
@@ -30,18 +30,11 @@ from bbpose_ros.core.pipeline.pose_pipeline import FrameResult
 
 FRAMES = 12
 
-# Measured with the shipped files on the 100 frames: detector (heatmap + second stage)
-# recall @ IoU 0.5 (visible fraction >= 0.3) 0.31, mean over objects (duck 0.78, ape 0.43,
-# holepuncher 0.30, cat 0.29, others 0.14-0.20); 0.24 on the first 12 frames (the one-stage
-# detector before it: 0.25 and 0.18). Q-Net (8, 16, 24, 32), first stride 2,
-# trained on upright views with 8 hypotheses, median rotation error with ground-truth boxes,
-# mean over objects: 47.1 deg with its best-scored hypotheses (47.9 deg on the first 12
-# frames; the one-hypothesis Q-Net before it: 56.9, the Q-Net trained on any roll: 81.4; a
-# random guess gives ~126 deg); 40.0 deg with the hypothesis the Bounding Box Equation fits
-# best (load_pipeline's default), but 57.9 on the first 12 frames (11 instances an object).
-# Raise these floors when better weights ship.
-DETECTOR_RECALL_FLOOR = 0.12
-ROTATION_MEDIAN_CEILING_DEG = 70.0
+# Floors well below what the shipped files measure on these frames and on all 100
+# (docs/results.md): a broken, untrained or swapped weight file falls under them, noise does
+# not. Raise them when better weights ship.
+DETECTOR_RECALL_FLOOR = 0.25
+ROTATION_MEDIAN_CEILING_DEG = 60.0
 
 
 @pytest.fixture(scope='module')

@@ -195,7 +195,7 @@ def _extra_cache_option(parser, kind):
 
 def _settings(settings, args):
     for name in ('batch', 'lr', 'trunk_lr_scale'):
-        if getattr(args, name) is not None:
+        if getattr(args, name, None) is not None:
             setattr(settings, name, getattr(args, name))
     return settings
 
