@@ -324,3 +324,18 @@ def test_train_verifier_cli_refuses_zero_candidates(tmp_path, lmo_root, capsys):
     assert code == 2
     assert '--candidates must be at least 1' in capsys.readouterr().err
     assert not (tmp_path / 'run').exists()
+
+
+def test_train_cli_refuses_a_window_or_input_size_off_the_grid(tmp_path, lmo_root, capsys):
+    _write_cache(tmp_path / 'scenes', _fake_cache(np.random.default_rng(7)))
+    code = main(['train', 'detector', '--dataset', str(lmo_root), '--cache',
+                 str(tmp_path / 'scenes'), '--run-dir', str(tmp_path / 'run'), '--steps', '1',
+                 '--backbone', 'lite0', '--train-crop', '400,160'])
+    assert code == 2
+    assert '--train-crop must be W,H in multiples of 16' in capsys.readouterr().err
+    assert not (tmp_path / 'run').exists()
+    code = main(['train', 'render', '--dataset', str(lmo_root), '--cache',
+                 str(tmp_path / 'new'), '--scenes', '1', '--input-size', '330,240'])
+    assert code == 2
+    assert '--input-size must be W,H in positive multiples of 16' in capsys.readouterr().err
+    assert not (tmp_path / 'new').exists()

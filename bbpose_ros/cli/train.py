@@ -54,6 +54,9 @@ def add_parser(subparsers):
     _common(render)
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
+    render.add_argument('--input-size', type=_int_tuple, default=(320, 240), metavar='W,H',
+                        help="the detector's input size the frames are stored at; multiples "
+                             'of 16 (default 320,240)')
     _backgrounds_option(render)
     add_inplane_argument(render)
     render.set_defaults(func=run_render)
@@ -78,7 +81,7 @@ def add_parser(subparsers):
         _budget(stage_parser)
         stage_parser.set_defaults(func=func)
     _extra_cache_option(sub.choices['detector'], 'scene')
-    _backbone_options(sub.choices['detector'])
+    _detector_options(sub.choices['detector'])
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
     verifier = sub.add_parser('verifier', help="train the detector's second stage")
@@ -91,6 +94,13 @@ def add_parser(subparsers):
     _budget(fig3, steps=3000)
     _qnet_options(fig3)
     fig3.set_defaults(func=run_fig3)
+
+
+def _detector_options(parser):
+    _backbone_options(parser)
+    parser.add_argument('--train-crop', type=_int_tuple, default=None, metavar='W,H',
+                        help='training window in input pixels, multiples of 16 '
+                             '(default 192,160)')
 
 
 def _backbone_options(parser):
@@ -194,7 +204,7 @@ def _extra_cache_option(parser, kind):
 
 
 def _settings(settings, args):
-    for name in ('batch', 'lr', 'trunk_lr_scale'):
+    for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop'):
         if getattr(args, name, None) is not None:
             setattr(settings, name, getattr(args, name))
     return settings
@@ -224,7 +234,10 @@ def run_render(args):
     scenes = SyntheticScenes(models, camera, seed=args.seed,
                              config=with_inplane_range(SynthConfig(), args),
                              backgrounds=_photos(args))
-    build_cache(scenes, args.cache, args.scenes, (320, 240), workers=args.workers)
+    if len(args.input_size) != 2 or any(side <= 0 or side % 16 for side in args.input_size):
+        raise InputError(f'--input-size must be W,H in positive multiples of 16, '
+                         f'got {args.input_size}')
+    build_cache(scenes, args.cache, args.scenes, args.input_size, workers=args.workers)
     return 0
 
 
@@ -251,6 +264,11 @@ def run_detector(args):
     config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size),
                             backbone=args.backbone)
     settings = _settings(DetectorTrainSettings(), args)
+    window = settings.train_crop
+    if len(window) != 2 or any(side <= 0 or side % 16 or side > full
+                               for side, full in zip(window, cache.input_size)):
+        raise InputError(f'--train-crop must be W,H in multiples of 16 within the cache input '
+                         f'size {tuple(cache.input_size)}, got {tuple(window)}')
     train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
                    args.every)
