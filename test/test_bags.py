@@ -48,6 +48,8 @@ def test_round_trip(lmo_frames, tmp_path, storage):
             assert rotation_error_deg(rotation, instance.rotation) < 0.02
             np.testing.assert_allclose(translation, instance.translation, atol=1e-9)
     assert sorted(p.name for p in tmp_path.iterdir()) == ['lmo_bag']
+    suffix = {'mcap': '.mcap', 'sqlite3': '.db3'}[storage]
+    assert sorted(p.name for p in bag.iterdir()) == sorted(['metadata.yaml', 'lmo_bag' + suffix])
 
 
 def test_failure_leaves_no_partial_bag(lmo_root, tmp_path):

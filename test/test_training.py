@@ -339,3 +339,27 @@ def test_train_cli_refuses_a_window_or_input_size_off_the_grid(tmp_path, lmo_roo
     assert code == 2
     assert '--input-size must be W,H in positive multiples of 16' in capsys.readouterr().err
     assert not (tmp_path / 'new').exists()
+
+
+def test_a_resumed_run_keeps_its_own_trunk_rate_and_refuses_other_groups(tmp_path):
+    def run(scales, steps):
+        net = torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Linear(2, 1))
+        groups = [{'params': list(layer.parameters()), 'lr_scale': scale}
+                  for layer, scale in zip(net, scales)]
+        optimizer = torch.optim.SGD(groups, 0.1)
+
+        def step(_):
+            loss = net(torch.ones(1, 2)).pow(2).sum()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            return float(loss.detach())
+
+        run_loop(tmp_path, net, optimizer, step, steps, None, 0.1, every=2, progress=False)
+        return optimizer
+
+    run([1.0, 0.1], 2)
+    resumed = run([1.0, 0.5], 4)
+    assert resumed.param_groups[1]['lr'] == pytest.approx(0.5 * resumed.param_groups[0]['lr'])
+    with pytest.raises(InputError, match='other optimizer groups'):
+        run([1.0], 6)

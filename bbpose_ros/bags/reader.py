@@ -18,12 +18,13 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from rosbags.rosbag2 import Reader
 
 from bbpose_ros.bags import topics
 from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
+from bbpose_ros.core.geometry.camera import CameraIntrinsics, intrinsics_from_camera_info
 
 
 @dataclass
@@ -42,8 +43,8 @@ class BagFrame:
 
     stamp_ns: int
     frame_id: str
-    image_rgb: object
-    camera: object = None
+    image_rgb: np.ndarray
+    camera: CameraIntrinsics | None = None
     ground_truth: dict = field(default_factory=dict)
 
 

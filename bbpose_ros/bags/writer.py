@@ -69,7 +69,7 @@ def write_bop_bag(frames, out_path, rate_hz=10.0, start_stamp_ns=1_000_000_000,
         raise InputError(f'output already exists: {out_path}')
     if not frames:
         raise InputError('no frames to write')
-    with atomic_output(out_path) as staging:
+    with atomic_output(out_path, keep_name=True) as staging:
         with Writer(staging, version=9, storage_plugin=STORAGE[storage]) as bag:
             _write_frames(bag, frames, rate_hz, start_stamp_ns, frame_id, min_visib, progress)
     return len(frames)

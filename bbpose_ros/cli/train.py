@@ -204,6 +204,9 @@ def _extra_cache_option(parser, kind):
 
 
 def _settings(settings, args):
+    if getattr(args, 'trunk_lr_scale', None) is not None and args.trunk_lr_scale < 0:
+        raise InputError(f'--trunk-lr-scale must be >= 0 (0 freezes the trunk), '
+                         f'got {args.trunk_lr_scale}')
     for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop'):
         if getattr(args, name, None) is not None:
             setattr(settings, name, getattr(args, name))
@@ -228,15 +231,15 @@ def run_render(args):
     from bbpose_ros.core.data.bop import BopDataset
     from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
     from bbpose_ros.core.training.cache import build_cache
+    if len(args.input_size) != 2 or any(side <= 0 or side % 16 for side in args.input_size):
+        raise InputError(f'--input-size must be W,H in positive multiples of 16, '
+                         f'got {args.input_size}')
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     camera = dataset.frames()[0].camera
     scenes = SyntheticScenes(models, camera, seed=args.seed,
                              config=with_inplane_range(SynthConfig(), args),
                              backgrounds=_photos(args))
-    if len(args.input_size) != 2 or any(side <= 0 or side % 16 for side in args.input_size):
-        raise InputError(f'--input-size must be W,H in positive multiples of 16, '
-                         f'got {args.input_size}')
     build_cache(scenes, args.cache, args.scenes, args.input_size, workers=args.workers)
     return 0
 
@@ -264,6 +267,9 @@ def run_detector(args):
     config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size),
                             backbone=args.backbone)
     settings = _settings(DetectorTrainSettings(), args)
+    if args.train_crop is None:      # the default window, cut to a smaller cache's frames
+        settings.train_crop = tuple(min(side, full) for side, full
+                                    in zip(settings.train_crop, cache.input_size))
     window = settings.train_crop
     if len(window) != 2 or any(side <= 0 or side % 16 or side > full
                                for side, full in zip(window, cache.input_size)):

@@ -30,21 +30,26 @@ from typing import Any, Iterator
 
 
 @contextmanager
-def atomic_output(path: Path | str) -> Iterator[Path]:
+def atomic_output(path: Path | str, keep_name: bool = False) -> Iterator[Path]:
     """
-    Yield a temporary sibling of ``path`` to write to; rename it to ``path`` on success.
+    Yield a temporary path to write to; rename it to ``path`` on success.
 
-    The temporary name (``.NAME.partial-PID``) is unique per process, so parallel workers
-    can write different outputs of one folder. Write a file or create a folder at the
-    yielded path; when the block raises, whatever was written there is removed.
+    The temporary name (``.NAME.partial-PID``, beside ``path``) is unique per process, so
+    parallel workers can write different outputs of one folder. With ``keep_name`` the
+    yielded path is ``.NAME.partial-PID/NAME``, for writers that name their contents after
+    the output (a rosbag's data file). Write a file or create a folder at the yielded path;
+    when the block raises, whatever was written is removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f'.{path.name}.partial-{os.getpid()}')
     _remove(tmp)
+    target = tmp / path.name if keep_name else tmp
     try:
-        yield tmp
-        tmp.replace(path)
+        if keep_name:
+            tmp.mkdir()
+        yield target
+        target.replace(path)
     finally:
         _remove(tmp)
 

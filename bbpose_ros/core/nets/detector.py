@@ -13,23 +13,23 @@
 # limitations under the License.
 
 """
-A compact CenterNet-style 2D detector that returns amodal boxes, trained from scratch on CPU.
+A compact CenterNet-style 2D detector that returns amodal boxes, trained on CPU from renders.
 
 Design, and why:
 
 * The 640x480 frame is downscaled to 320x240 (``input_size``): LM-O objects are large
   enough to stay well resolved after halving, and the convolutions cost a quarter.
-* A plain stride-2 conv stack (BN + ReLU) down to stride 16, one dilated conv for a receptive
-  field larger than the biggest object, and one top-down merge back to stride 8 (a 40x30
-  grid). No anchors and no NMS beyond a 3x3 max-pool: one class heatmap per object, as in
-  CenterNet (Zhou et al. 2019), since each object name is a class of its own.
+* Features down to stride 16 and one top-down merge back to stride 8 (a 40x30 grid), from
+  one of two backbones: 'lite0', EfficientNet-Lite0's ImageNet-pretrained blocks (features
+  learned on photographs carry over from renders to camera images), or 'scratch', a plain
+  stride-2 conv stack (BN + ReLU) with one dilated conv for a receptive field larger than
+  the biggest object. No anchors and no NMS beyond a 3x3 max-pool: one class heatmap per
+  object, as in CenterNet (Zhou et al. 2019), since each object name is a class of its own.
 * Boxes are regressed FCOS-style as the four distances (left, top, right, bottom) from the
   peak cell's centre to the sides of the AMODAL box, in log space (scale-free L1). The
   heatmap peak sits at the amodal box centre, so a half-hidden object still gets its full
   box, which the Bounding Box Equation needs.
-* A few hundred thousand parameters with the default ``channels``, sized for the
-  detector's budget on 2 CPU cores with ``channels_last`` and
-  ``torch.inference_mode`` (``bbpose bench`` checks the budget).
+* Sized for the detector's budget on 2 CPU cores (``bbpose bench`` checks it).
 * An optional second stage, as in MTCNN's cascade (``core.nets.verifier``): the
   ``candidates`` highest peaks of each class are re-scored by a small classifier on a crop
   of their box, which learns the false peaks the heatmap ranks high.
@@ -62,7 +62,7 @@ class DetectorConfig:
     Attributes:
         objects: class names, one heatmap channel each, in this order.
         input_size: (width, height) the frame is resized to before the network.
-        channels: widths of the stride 2, 4, 8 and 16 stages.
+        channels: widths of the stride 2, 4, 8 and 16 stages ('scratch' backbone only).
         stride: output grid stride in input pixels (fixed by the architecture: 8).
         verifier_channels: widths of the second stage's four conv stages; () (also files
             without this field): no second stage, the heatmap peaks are the detections.

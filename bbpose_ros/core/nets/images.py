@@ -26,8 +26,9 @@ from typing import Any
 import torch
 from torch import nn
 
-# Every network of the package centres its 0..1 input on 0.5 and scales it by 1 / 0.25
-# (roughly unit variance for natural images), inside the network so exports carry it.
+# The networks trained from scratch centre their 0..1 input on 0.5 and scale it by 1 / 0.25
+# (roughly unit variance for natural images), inside the network so exports carry it; an
+# ImageNet trunk normalises with ImageNet's statistics instead (``efficientnet_lite``).
 INPUT_MEAN = 0.5
 INPUT_STD = 0.25
 

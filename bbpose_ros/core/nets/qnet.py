@@ -15,11 +15,11 @@
 """
 Q-Net: a small CNN that regresses one unit quaternion (wxyz) from a square object crop.
 
-The paper's shape: 3x3 convolutions (stride 1) each followed by 2x2 max pooling (stride 2),
-then fully connected layers, then the q-normalization layer. Batch normalisation after each
-convolution speeds up CPU training; it costs next to nothing at inference (it is folded into
-the convolution). Widths (``QNetConfig.channels``, stored in each weight file) are kept
-small so that all the crops of a frame (up to 8 at 48x48) run within Q-Net's budget on
+The paper's shape ('scratch' backbone): 3x3 convolutions (stride 1) each followed by 2x2
+max pooling (stride 2), then fully connected layers, then the q-normalization layer. Batch
+normalisation after each convolution speeds up CPU training; at inference it is folded into
+the convolution (or fused by ONNX Runtime). Widths (``QNetConfig.channels``, stored in each
+weight file) are kept small so that all the crops of a frame run within Q-Net's budget on
 2 CPU cores.
 
 Options (``QNetConfig``), the paper's version being the default where it has one:

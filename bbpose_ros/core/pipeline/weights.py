@@ -72,7 +72,6 @@ def save_weights(path: Path | str, network: QNet | CenterBoxNet, kind: str,
                  training: Mapping[str, Any]) -> None:
     """Write ``network`` (QNet or CenterBoxNet) with its metadata, atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().clone() for k, v in network.state_dict().items()}
     payload = {'metadata': metadata_for(kind, network.config, training), 'state_dict': state}
     with atomic_output(path) as tmp:

@@ -15,7 +15,7 @@
 """
 The shared training loop: step or time budget, checkpoints and resume, log and loss plot.
 
-A run folder holds ``checkpoint.pt`` (network, optimizer, step; small enough to commit),
+A run folder holds ``checkpoint.pt`` (network, optimizer, step),
 ``log.csv`` (step, seconds, loss, lr and validation figures), ``train.log`` (text) and
 ``loss.png``. Resuming continues the step count, the learning-rate schedule and the log.
 """
@@ -32,6 +32,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
 
 
@@ -131,7 +132,14 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
     if checkpoint.is_file():
         state = torch.load(checkpoint, map_location='cpu', weights_only=True)
         network.load_state_dict(state['network'])
-        optimizer.load_state_dict(state['optimizer'])
+        scales = [group.get('lr_scale', 1.0) for group in optimizer.param_groups]
+        try:
+            optimizer.load_state_dict(state['optimizer'])
+        except ValueError as err:
+            raise InputError(f'{checkpoint} was trained with other optimizer groups '
+                             f'(e.g. a frozen vs a fine-tuned trunk): {err}') from None
+        for group, scale in zip(optimizer.param_groups, scales):
+            group['lr_scale'] = scale       # this call's settings, not the checkpoint's
         step = int(state['step'])
         if extra_state is not None:
             extra_state.update(state.get('extra', {}))

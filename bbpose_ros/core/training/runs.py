@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
@@ -87,8 +88,8 @@ def _exporter(run_dir, network, kind, training, export, validation, base=None):
         path = Path(run_dir) / f'{kind}.pt'
         save_weights(path, network, kind, record)
         if export:
-            Path(export).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, export)
+            with atomic_output(export) as tmp:
+                shutil.copyfile(path, tmp)
     return export_weights
 
 

@@ -35,8 +35,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from bbpose_ros.core.geometry.boxes import box_iou
-from bbpose_ros.core.geometry.boxes import jitter_boxes
+from bbpose_ros.core.geometry.boxes import box_iou, jitter_boxes
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode
 from bbpose_ros.core.nets.images import images_to_input
