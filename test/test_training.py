@@ -64,17 +64,21 @@ def test_tiny_qnet_run_lowers_the_loss(hypotheses):
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
 
 
-def test_run_loop_checkpoints_and_resumes(tmp_path):
-    net = torch.nn.Linear(2, 1)
-    optimizer = torch.optim.SGD(net.parameters(), 0.1)
-
+def _step(optimizer, loss_fn):
+    """Return a ``run_loop`` step: minimise ``loss_fn()`` once with ``optimizer``."""
     def step(_):
-        loss = net(torch.ones(1, 2)).pow(2).sum()
+        loss = loss_fn()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
         return float(loss.detach())
+    return step
 
+
+def test_run_loop_checkpoints_and_resumes(tmp_path):
+    net = torch.nn.Linear(2, 1)
+    optimizer = torch.optim.SGD(net.parameters(), 0.1)
+    step = _step(optimizer, lambda: net(torch.ones(1, 2)).pow(2).sum())
     exported = []
     assert run_loop(tmp_path, net, optimizer, step, 20, None, 0.1, every=5, progress=False,
                     on_checkpoint=exported.append, extra_state=None) == 20
@@ -97,14 +101,11 @@ def test_a_pretrained_trunk_learns_slower_on_its_imagenet_statistics(tmp_path):
     assert not trunk & {id(p) for p in head['params']}
     optimizer = torch.optim.AdamW([head, scaled], 1e-3)
 
-    def step(_):
+    def loss():
         heat, sides = net(torch.rand(2, 3, 64, 64))
-        loss = heat.square().mean() + sides.square().mean()
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        return float(loss.detach())
+        return heat.square().mean() + sides.square().mean()
 
+    step = _step(optimizer, loss)
     statistics = net.trunk._bn0.running_mean.clone()
     run_loop(tmp_path, net, optimizer, step, 3, None, 1e-3, every=3, progress=False)
     assert optimizer.param_groups[1]['lr'] == pytest.approx(0.1 * optimizer.param_groups[0]['lr'])
@@ -347,14 +348,7 @@ def test_a_resumed_run_keeps_its_own_trunk_rate_and_refuses_other_groups(tmp_pat
         groups = [{'params': list(layer.parameters()), 'lr_scale': scale}
                   for layer, scale in zip(net, scales)]
         optimizer = torch.optim.SGD(groups, 0.1)
-
-        def step(_):
-            loss = net(torch.ones(1, 2)).pow(2).sum()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
-            return float(loss.detach())
-
+        step = _step(optimizer, lambda: net(torch.ones(1, 2)).pow(2).sum())
         run_loop(tmp_path, net, optimizer, step, steps, None, 0.1, every=2, progress=False)
         return optimizer
 
