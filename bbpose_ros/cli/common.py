@@ -37,7 +37,7 @@ def add_objects_argument(parser):
 
 def add_inplane_argument(parser):
     """Add ``--inplane-range-deg LOW,HIGH`` (the synthetic objects' roll; default: any)."""
-    parser.add_argument('--inplane-range-deg', type=_float_pair, default=None,
+    parser.add_argument('--inplane-range-deg', type=float_pair, default=None,
                         metavar='LOW,HIGH',
                         help='roll of the rendered objects about the optical axis, degrees, '
                              "0 when the model's z axis points up in the image, e.g. "
@@ -51,7 +51,8 @@ def with_inplane_range(config, args):
     return replace(config, inplane_range_deg=args.inplane_range_deg)
 
 
-def _float_pair(text):
+def float_pair(text):
+    """Parse 'A,B' into two floats (an argparse type)."""
     try:
         low, high = (float(x) for x in text.split(','))
     except ValueError:
@@ -63,3 +64,20 @@ def add_frames_argument(parser):
     """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
     parser.add_argument('--max-frames', type=int, default=None,
                         help='use only the first N frames (default: all)')
+
+
+def add_refinement_arguments(parser):
+    """Add ``--refine/--no-refine`` and ``--refine-min-score`` (the refinement stage)."""
+    parser.add_argument('--refine', action=argparse.BooleanOptionalAction, default=True,
+                        help='refine each pose by aligning the silhouette with the image '
+                             '(default: on)')
+    parser.add_argument('--refine-min-score', type=float, default=0.0,
+                        help='drop refined poses scored below this, 0..1 (default %(default)s)')
+
+
+def load_refiner(args, models):
+    """Build the PoseRefiner that ``add_refinement_arguments``' options ask for, or None."""
+    if not args.refine:
+        return None
+    from bbpose_ros.core.pipeline.refinement import load_pose_refiner
+    return load_pose_refiner(models, min_score=args.refine_min_score)

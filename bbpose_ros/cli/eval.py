@@ -17,8 +17,10 @@
 from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
-                                   add_objects_argument)
+                                   add_objects_argument, add_refinement_arguments, float_pair,
+                                   load_refiner)
 from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
@@ -49,6 +51,14 @@ def add_parser(subparsers):
                         help='how much the Bounding Box Equation misfit counts in choosing '
                              'among Q-Net hypotheses; 0: the best-scored one '
                              '(default %(default)s)')
+    add_refinement_arguments(parser)
+    parser.add_argument('--perturb-gt', type=float_pair, default=None, metavar='DEG,MM',
+                        help='with --boxes gt --rotation gt: start each pose from the ground '
+                             'truth turned DEG degrees about a random axis and moved MM '
+                             'millimetres in a random direction, then refine it (the '
+                             "refiner's basin)")
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the --perturb-gt perturbations (default %(default)s)')
     add_objects_argument(parser)
     add_frames_argument(parser)
     parser.add_argument('--min-visib', type=float, default=0.1,
@@ -61,13 +71,13 @@ def add_parser(subparsers):
 
 
 def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None,
-                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT):
+                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT, refiner=None):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     if boxes == 'gt' and rotation == 'gt':
-        return PosePipeline(models)
+        return PosePipeline(models, refiner=refiner)
     from bbpose_ros.core.pipeline.estimators import load_pipeline
     return load_pipeline(models, detector_weights, qnet_weights,
-                         box_consistency_weight=box_consistency_weight)
+                         box_consistency_weight=box_consistency_weight, refiner=refiner)
 
 
 class RecordingDetector:
@@ -99,14 +109,20 @@ def run(args):
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
+    perturb = None
+    if args.perturb_gt is not None:
+        if args.boxes != 'gt' or args.rotation != 'gt':
+            raise InputError('--perturb-gt needs --boxes gt --rotation gt')
+        perturb = (args.perturb_gt[0], args.perturb_gt[1] / 1000.0)
     pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
-                              args.qnet_weights, args.box_consistency_weight)
+                              args.qnet_weights, args.box_consistency_weight,
+                              load_refiner(args, models))
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
     scores, timings = score_frames(frames, pipeline, boxes=args.boxes,
                                    rotation='gt' if args.rotation == 'gt' else 'estimator',
-                                   min_visib=args.min_visib)
+                                   min_visib=args.min_visib, perturb=perturb, seed=args.seed)
     report = make_report(scores, timings, len(frames))
     detection = None
     if recorder is not None:
@@ -117,7 +133,9 @@ def run(args):
                         'rotation': args.rotation, 'min_visib': args.min_visib,
                         'detector_weights': _weights_name(args.detector_weights),
                         'qnet_weights': _weights_name(args.qnet_weights),
-                        'box_consistency_weight': args.box_consistency_weight}
+                        'box_consistency_weight': args.box_consistency_weight,
+                        'refine': args.refine, 'refine_min_score': args.refine_min_score,
+                        'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
     if detection is not None:
         print(f'\ndetector, IoU >= 0.5, instances with visib_fract >= {args.min_visib} '

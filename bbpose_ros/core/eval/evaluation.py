@@ -25,18 +25,21 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 import math
+import time
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 from tqdm import tqdm
 
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import metrics
 from bbpose_ros.core.eval.tables import format_object_table
 from bbpose_ros.core.geometry.boxes import box_iou
-from bbpose_ros.core.geometry.rotations import euler_error_deg
+from bbpose_ros.core.geometry.rotations import euler_error_deg, perturb_pose
 from bbpose_ros.core.latency import timing_summary
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate, PosePipeline
+from bbpose_ros.core.pipeline.pose_pipeline import (Detection, FrameResult, PoseEstimate,
+                                                    PosePipeline)
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame, GroundTruthInstance
@@ -173,7 +176,8 @@ def make_report(scores: Mapping[str, Sequence[InstanceScore]],
 
 
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
-                 rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True
+                 rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True,
+                 perturb: tuple[float, float] | None = None, seed: int = 0
                  ) -> tuple[dict[str, list[InstanceScore]], list[dict[str, float]]]:
     """
     Run the pipeline over BOP frames and score every counted instance.
@@ -185,11 +189,19 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
         rotation: 'gt' (ground-truth rotations of the matched instances) or 'estimator'.
         min_visib: instances less visible than this are not counted.
         progress: show a progress bar on stderr.
+        perturb: (degrees, metres): instead of the Bounding Box Equation, start each pose
+            from its ground truth turned by that angle about a random axis and moved by that
+            distance in a random direction (seeded), then run the pipeline's refiner on it
+            (none: the perturbed pose is scored). Needs boxes and rotation 'gt'.
+        seed: seed of the perturbations.
 
     Returns:
         ({name: [InstanceScore]}, [per-frame stage timings in ms]).
 
     """
+    if perturb is not None and (boxes != 'gt' or rotation != 'gt'):
+        raise InputError('perturbing the ground truth needs ground-truth boxes and rotations')
+    rng = np.random.default_rng(seed)
     scores = {name: [] for name in pipeline.models}
     timings = []
     for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress):
@@ -205,13 +217,33 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
             keep = [k for k, t in enumerate(truths) if t is not None]
             detections = [detections[k] for k in keep]
             rotations = np.array([truths[k].rotation for k in keep]).reshape(-1, 3, 3)
-            result = pipeline.estimate(image, frame.camera, detections, rotations)
+            if perturb is None:
+                result = pipeline.estimate(image, frame.camera, detections, rotations)
+            else:
+                result = refine_perturbed(pipeline, image, frame.camera, detections,
+                                          [truths[k] for k in keep], perturb, rng)
         else:
             result = pipeline.estimate(image, frame.camera, detections)
         timings.append(result.timings_ms)
         for score in score_frame(pipeline.models, counted, result.poses, frame.camera):
             scores[score.object_name].append(score)
     return scores, timings
+
+
+def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                     detections: Sequence[Detection], truths: Sequence[GroundTruthInstance],
+                     perturb: tuple[float, float], rng: np.random.Generator) -> FrameResult:
+    """Refine perturbed ground-truth poses with the pipeline's refiner (see score_frames)."""
+    start = time.perf_counter()
+    poses = [PoseEstimate(d, *perturb_pose(t.rotation, t.translation, perturb[0], perturb[1],
+                                           rng))
+             for d, t in zip(detections, truths)]
+    timings = {}
+    if pipeline.refiner is not None and poses:
+        poses = pipeline.refiner(image_rgb, camera, poses)
+        timings['refinement'] = (time.perf_counter() - start) * 1e3
+    timings['total'] = (time.perf_counter() - start) * 1e3
+    return FrameResult(poses, timings)
 
 
 def score_frame(models: Mapping[str, ObjectModel], instances: Sequence[GroundTruthInstance],

@@ -170,3 +170,26 @@ def egocentric_to_allocentric(rotation_ego: npt.ArrayLike, rays: npt.ArrayLike) 
     """Allocentric rotations (N, 3, 3) from egocentric ones seen along (N, 3) camera rays."""
     views = ray_rotation(rays)
     return np.swapaxes(views, -1, -2) @ np.asarray(rotation_ego, dtype=float).reshape(-1, 3, 3)
+
+
+def exp_so3(rotation_vector: npt.ArrayLike) -> np.ndarray:
+    """(3, 3) rotation matrix of a (3,) rotation vector (axis times angle, radians)."""
+    return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_matrix()
+
+
+def perturb_pose(rotation: npt.ArrayLike, translation: npt.ArrayLike, angle_deg: float,
+                 offset_m: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Turn a pose by ``angle_deg`` about a random axis, move it ``offset_m`` in a random way.
+
+    Axis and direction are uniform on the sphere: the start of a refinement's basin test.
+
+    Returns:
+        ((3, 3) rotation, (3,) translation): the rotation error to the given pose is exactly
+        ``angle_deg`` and the translation error exactly ``offset_m``.
+
+    """
+    axis, direction = rng.normal(size=(2, 3))
+    turned = exp_so3(axis / np.linalg.norm(axis) * np.deg2rad(angle_deg)) @ np.asarray(rotation)
+    moved = np.asarray(translation, dtype=float) + direction / np.linalg.norm(direction) * offset_m
+    return turned, moved

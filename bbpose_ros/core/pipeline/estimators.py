@@ -52,6 +52,7 @@ from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.pipeline.refinement import PoseRefiner
 
 # Largest Q-Net batch run at load time (see QNetRotationEstimator.warm_up).
 MAX_WARM_UP_BATCH = 16
@@ -247,8 +248,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
                   qnet_weights: Path | str | None = None, score_threshold: float = 0.3,
                   max_instances: int = 1, backend: str = 'onnxruntime',
                   device: str | torch.device = 'cpu', threads: int | None = None,
-                  box_consistency_weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT
-                  ) -> PosePipeline:
+                  box_consistency_weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT,
+                  refiner: PoseRefiner | None = None) -> PosePipeline:
     """
     Build a PosePipeline with the learned detector and Q-Net.
 
@@ -264,9 +265,10 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
         box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
             Equation's misfit counts in choosing a hypothesis (``hypotheses``); 0: the
             network's best-scored one.
+        refiner: the refinement stage (``refinement.load_pose_refiner``), or None.
 
     Returns:
-        PosePipeline(models, detector, rotation_estimator, hypothesis_selector).
+        PosePipeline(models, detector, rotation_estimator, hypothesis_selector, refiner).
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file, or a bad argument.
@@ -291,4 +293,5 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
         all_hypotheses=qnet.config.hypotheses > 1 and selector.weight > 0)
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
-    return PosePipeline(models, detector, rotation, hypothesis_selector=selector)
+    return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
+                        refiner=refiner)

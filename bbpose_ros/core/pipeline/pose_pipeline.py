@@ -22,7 +22,9 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
   model-to-camera (egocentric) rotations, one per detection, or several per detection
   (``hypotheses.RotationHypotheses``), of which ``hypotheses.HypothesisSelector`` keeps
   the one that best explains the box;
-* the Bounding Box Equation for the translations (``bbox_equation``).
+* the Bounding Box Equation for the translations (``bbox_equation``);
+* optionally a refiner ``refine(image_rgb, camera, poses) -> poses`` (``refinement``) that
+  aligns each pose with the image and sets its ``refinement_score``.
 """
 
 from __future__ import annotations
@@ -71,17 +73,27 @@ class PoseEstimate:
         detection: the Detection it was estimated from.
         rotation: (3, 3) model-to-camera rotation (egocentric).
         translation: (3,) metres, camera optical frame.
+        refinement_score: when refined, the share of contour lines that agree with the
+            image (0..1, ``region_refiner``); None when not refined.
 
     """
 
     detection: Detection
     rotation: np.ndarray
     translation: np.ndarray
+    refinement_score: float | None = None
 
     @property
     def object_name(self) -> str:
         """Name of the object."""
         return self.detection.object_name
+
+    @property
+    def confidence(self) -> float:
+        """Return the refinement score when refined, else the detection score (0..1)."""
+        if self.refinement_score is not None:
+            return self.refinement_score
+        return self.detection.score
 
 
 @dataclass(frozen=True)
@@ -106,6 +118,7 @@ class PosePipeline:
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
         hypothesis_selector: the HypothesisSelector that picks one of RotationHypotheses;
             None: one with the default weight, made when hypotheses first come.
+        refiner: callable (image, camera, poses) -> refined poses, or None (no refinement).
 
     """
 
@@ -115,7 +128,9 @@ class PosePipeline:
                      [np.ndarray, CameraIntrinsics, list[Detection]],
                      np.ndarray | RotationHypotheses] | None = None,
                  selection: str = 'tangent_planes', max_iterations: int = 10,
-                 hypothesis_selector: HypothesisSelector | None = None) -> None:
+                 hypothesis_selector: HypothesisSelector | None = None,
+                 refiner: Callable[[np.ndarray, CameraIntrinsics, list[PoseEstimate]],
+                                   list[PoseEstimate]] | None = None) -> None:
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -124,6 +139,7 @@ class PosePipeline:
         self.selection = selection
         self.max_iterations = max_iterations
         self.hypothesis_selector = hypothesis_selector
+        self.refiner = refiner
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Iterable[Detection] | None = None,
@@ -166,6 +182,10 @@ class PosePipeline:
         stage = time.perf_counter()
         poses = self.translations(camera, detections, rotations)
         timings['translation'] = _ms_since(stage)
+        if self.refiner is not None and poses:
+            stage = time.perf_counter()
+            poses = self.refiner(image_rgb, camera, poses)
+            timings['refinement'] = _ms_since(stage)
         timings['total'] = _ms_since(start)
         return FrameResult(poses, timings)
 

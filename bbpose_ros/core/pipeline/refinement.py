@@ -1,0 +1,101 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The pipeline's refinement stage: each pose aligned with the image by ``RegionRefiner``.
+
+It runs after the Bounding Box Equation, whose translation (the depth above all: the
+silhouette hardly tells it) and the chosen rotation are the start. The refinement score
+becomes the pose's confidence; poses scored below ``min_score`` are dropped, which rejects
+detections whose silhouette the image does not support.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+import dataclasses
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
+from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.refine.region_refiner import Refinement, RefinerConfig, RegionRefiner
+from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+
+
+class PoseRefiner:
+    """
+    Refine the poses of a frame, one RegionRefiner per object.
+
+    Args:
+        viewpoint_models: {name: ViewpointModel} of the objects that can be refined; poses
+            of other objects pass unchanged.
+        config: RefinerConfig shared by all objects.
+        min_score: refined poses scored below this (0..1) are dropped; 0 keeps all.
+
+    """
+
+    def __init__(self, viewpoint_models: Mapping[str, ViewpointModel],
+                 config: RefinerConfig | None = None, min_score: float = 0.0) -> None:
+        if not 0.0 <= min_score <= 1.0:
+            raise InputError(f'refinement min_score must be in [0, 1], got {min_score}')
+        self.config = config or RefinerConfig()
+        self.min_score = float(min_score)
+        self.refiners = {name: RegionRefiner(model, self.config)
+                         for name, model in viewpoint_models.items()}
+
+    def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                 poses: Sequence[PoseEstimate]) -> list[PoseEstimate]:
+        """Refine the poses; keep those scored >= min_score, in the given order."""
+        refined = []
+        for pose in poses:
+            if pose.object_name not in self.refiners:
+                refined.append(pose)
+                continue
+            result = self.refine_one(image_rgb, camera, pose.object_name, pose.rotation,
+                                     pose.translation)
+            if result.score >= self.min_score:
+                refined.append(with_refinement(pose, result))
+        return refined
+
+    def refine_one(self, image_rgb: np.ndarray, camera: CameraIntrinsics, name: str,
+                   rotation: np.ndarray, translation: np.ndarray,
+                   histograms: ColorHistograms | None = None,
+                   iterations: int | None = None) -> Refinement:
+        """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
+        return self.refiners[name].refine(image_rgb, camera, rotation, translation,
+                                          histograms, iterations)
+
+
+def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:
+    """Move a pose to a refinement's result and score it (unchanged when it did not run)."""
+    return dataclasses.replace(pose, rotation=result.rotation, translation=result.translation,
+                               refinement_score=result.score)
+
+
+def load_pose_refiner(models: Mapping[str, ObjectModel], config: RefinerConfig | None = None,
+                      min_score: float = 0.0, cache_dir: Path | str | None = None,
+                      progress: bool = True,
+                      log: Callable[[str], None] | None = None) -> PoseRefiner:
+    """Build a PoseRefiner of the objects, viewpoint models from the cache (built if new)."""
+    return PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
+                       config, min_score)
