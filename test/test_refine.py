@@ -113,7 +113,7 @@ def test_refiner_converges_on_renders(viewpoint_models, lmo_models, name, seed):
     translation = np.array([0.03, -0.02, 0.75])
     image = rendered_scene(model, rotation, translation, seed)
     start_r, start_t = perturb_pose(rotation, translation, 10.0, 0.020, rng)
-    config = dataclasses.replace(RefinerConfig(), iterations=20, tikhonov_depth=0.0)
+    config = dataclasses.replace(RefinerConfig(), iterations=20)
     result = RegionRefiner(models[name], config).refine(image, CAMERA, start_r, start_t)
     assert result.ok
     assert rotation_error_deg(result.rotation, rotation) < 1.0

@@ -249,7 +249,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
                   max_instances: int = 1, backend: str = 'onnxruntime',
                   device: str | torch.device = 'cpu', threads: int | None = None,
                   box_consistency_weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT,
-                  refiner: PoseRefiner | None = None) -> PosePipeline:
+                  refiner: PoseRefiner | None = None, refine_hypotheses: int = 1
+                  ) -> PosePipeline:
     """
     Build a PosePipeline with the learned detector and Q-Net.
 
@@ -266,6 +267,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
             Equation's misfit counts in choosing a hypothesis (``hypotheses``); 0: the
             network's best-scored one.
         refiner: the refinement stage (``refinement.load_pose_refiner``), or None.
+        refine_hypotheses: with a refiner, how many of each detection's best-ranked rotation
+            hypotheses are refined (the best-scored one is kept).
 
     Returns:
         PosePipeline(models, detector, rotation_estimator, hypothesis_selector, refiner).
@@ -294,4 +297,4 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
     return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
-                        refiner=refiner)
+                        refiner=refiner, refine_hypotheses=refine_hypotheses)

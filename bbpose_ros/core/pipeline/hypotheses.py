@@ -113,18 +113,25 @@ class HypothesisSelector:
     def __call__(self, camera: CameraIntrinsics, detections: Sequence[Detection],
                  hypotheses: RotationHypotheses) -> np.ndarray:
         """(N, 3, 3) the chosen rotation of each of the N detections."""
+        return self.ranked(camera, detections, hypotheses, 1)[:, 0]
+
+    def ranked(self, camera: CameraIntrinsics, detections: Sequence[Detection],
+               hypotheses: RotationHypotheses, count: int) -> np.ndarray:
+        """(N, K, 3, 3) the K = min(count, H) best rotations of each detection, best first."""
         rotations, log_probs = hypotheses.rotations, hypotheses.log_probs
-        n, count = rotations.shape[:2]
-        if log_probs.shape != (n, count) or n != len(detections):
+        n, total = rotations.shape[:2]
+        if log_probs.shape != (n, total) or n != len(detections):
             raise InputError(f'rotation hypotheses {rotations.shape[:2]} with log-probabilities '
                              f'{log_probs.shape} for {len(detections)} detections')
-        if n == 0 or count == 1 or self.weight == 0.0:
-            return rotations[np.arange(n), log_probs.argmax(axis=1)]
-        boxes = np.repeat(np.stack([d.box_uv for d in detections]).astype(float), count, axis=0)
-        points = self._points[[self._index[d.object_name] for d in detections]]
-        solution = solve_translations(rotations.reshape(-1, 3, 3), boxes,
-                                      np.repeat(points, count, axis=0),
-                                      camera.fx, camera.fy, camera.cx, camera.cy)
-        misfit = box_misfit(solution.side_residuals_px, boxes).reshape(n, count)
-        best = np.argmax(log_probs - self.weight * misfit, axis=1)
-        return rotations[np.arange(n), best]
+        ranking = log_probs
+        if n > 0 and total > 1 and self.weight > 0.0:
+            boxes = np.repeat(np.stack([d.box_uv for d in detections]).astype(float), total,
+                              axis=0)
+            points = self._points[[self._index[d.object_name] for d in detections]]
+            solution = solve_translations(rotations.reshape(-1, 3, 3), boxes,
+                                          np.repeat(points, total, axis=0),
+                                          camera.fx, camera.fy, camera.cx, camera.cy)
+            misfit = box_misfit(solution.side_residuals_px, boxes).reshape(n, total)
+            ranking = log_probs - self.weight * misfit
+        order = np.argsort(-ranking, axis=1, kind='stable')[:, :max(1, min(count, total))]
+        return rotations[np.arange(n)[:, None], order]

@@ -23,8 +23,8 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
   (``hypotheses.RotationHypotheses``), of which ``hypotheses.HypothesisSelector`` keeps
   the one that best explains the box;
 * the Bounding Box Equation for the translations (``bbox_equation``);
-* optionally a refiner ``refine(image_rgb, camera, poses) -> poses`` (``refinement``) that
-  aligns each pose with the image and sets its ``refinement_score``.
+* optionally a refiner (``refinement.PoseRefiner``) that aligns each pose, or the few
+  best hypotheses of each detection, with the image and keeps the best-scored one.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector, RotationHypo
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.pipeline.refinement import PoseRefiner
 
 
 @dataclass(frozen=True)
@@ -118,7 +119,10 @@ class PosePipeline:
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
         hypothesis_selector: the HypothesisSelector that picks one of RotationHypotheses;
             None: one with the default weight, made when hypotheses first come.
-        refiner: callable (image, camera, poses) -> refined poses, or None (no refinement).
+        refiner: a ``refinement.PoseRefiner`` (its ``best_of`` refines candidate poses and
+            keeps the best-scored one per detection), or None (no refinement).
+        refine_hypotheses: with a refiner and RotationHypotheses, how many of each
+            detection's best-ranked hypotheses are solved and refined (1: the chosen one).
 
     """
 
@@ -129,8 +133,7 @@ class PosePipeline:
                      np.ndarray | RotationHypotheses] | None = None,
                  selection: str = 'tangent_planes', max_iterations: int = 10,
                  hypothesis_selector: HypothesisSelector | None = None,
-                 refiner: Callable[[np.ndarray, CameraIntrinsics, list[PoseEstimate]],
-                                   list[PoseEstimate]] | None = None) -> None:
+                 refiner: PoseRefiner | None = None, refine_hypotheses: int = 1) -> None:
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -139,7 +142,10 @@ class PosePipeline:
         self.selection = selection
         self.max_iterations = max_iterations
         self.hypothesis_selector = hypothesis_selector
+        if refine_hypotheses < 1:
+            raise InputError(f'refine_hypotheses must be at least 1, got {refine_hypotheses}')
         self.refiner = refiner
+        self.refine_hypotheses = int(refine_hypotheses)
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Iterable[Detection] | None = None,
@@ -173,18 +179,24 @@ class PosePipeline:
             stage = time.perf_counter()
             rotations = self.rotation_estimator(image_rgb, camera, detections)
             timings['rotation'] = _ms_since(stage)
+        candidates = 1
         if isinstance(rotations, RotationHypotheses):
             stage = time.perf_counter()
             if self.hypothesis_selector is None:
                 self.hypothesis_selector = HypothesisSelector(self.models)
-            rotations = self.hypothesis_selector(camera, detections, rotations)
+            refined = self.refiner is not None and self.refine_hypotheses > 1
+            rotations = self.hypothesis_selector.ranked(
+                camera, detections, rotations, self.refine_hypotheses if refined else 1)
+            candidates = rotations.shape[1]
             timings['hypothesis_selection'] = _ms_since(stage)
         stage = time.perf_counter()
-        poses = self.translations(camera, detections, rotations)
+        poses = self.translations(camera, [d for d in detections for _ in range(candidates)],
+                                  np.reshape(rotations, (-1, 3, 3)))
         timings['translation'] = _ms_since(stage)
         if self.refiner is not None and poses:
             stage = time.perf_counter()
-            poses = self.refiner(image_rgb, camera, poses)
+            poses = self.refiner.best_of(image_rgb, camera, [
+                poses[k:k + candidates] for k in range(0, len(poses), candidates)])
             timings['refinement'] = _ms_since(stage)
         timings['total'] = _ms_since(start)
         return FrameResult(poses, timings)

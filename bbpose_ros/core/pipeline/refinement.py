@@ -15,8 +15,9 @@
 """
 The pipeline's refinement stage: each pose aligned with the image by ``RegionRefiner``.
 
-It runs after the Bounding Box Equation, whose translation (the depth above all: the
-silhouette hardly tells it) and the chosen rotation are the start. The refinement score
+It runs after the Bounding Box Equation, whose translation and the chosen rotation are the
+start; the silhouette corrects the depth that a box with a side a few pixels off gets
+wrong, as much as the rotation. The refinement score
 becomes the pose's confidence; poses scored below ``min_score`` are dropped, which rejects
 detections whose silhouette the image does not support.
 """
@@ -66,24 +67,45 @@ class PoseRefiner:
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  poses: Sequence[PoseEstimate]) -> list[PoseEstimate]:
         """Refine the poses; keep those scored >= min_score, in the given order."""
+        return self.best_of(image_rgb, camera, [[pose] for pose in poses])
+
+    def best_of(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                candidates: Sequence[Sequence[PoseEstimate]]) -> list[PoseEstimate]:
+        """
+        Refine every candidate pose of each detection and keep the best-scored one.
+
+        Args:
+            image_rgb: (H, W, 3) uint8 image.
+            camera: its CameraIntrinsics.
+            candidates: per detection, its candidate poses (e.g. one per rotation
+                hypothesis), all of the same object.
+
+        Returns:
+            Per detection, the best refined candidate when it scores >= min_score, in the
+            given order; detections of objects without a viewpoint model keep their first
+            candidate unrefined.
+
+        """
         refined = []
-        for pose in poses:
-            if pose.object_name not in self.refiners:
-                refined.append(pose)
+        for group in candidates:
+            name = group[0].object_name
+            if name not in self.refiners:
+                refined.append(group[0])
                 continue
-            result = self.refine_one(image_rgb, camera, pose.object_name, pose.rotation,
-                                     pose.translation)
-            if result.score >= self.min_score:
-                refined.append(with_refinement(pose, result))
+            results = [self.refine_one(image_rgb, camera, name, pose.rotation,
+                                       pose.translation) for pose in group]
+            best = max(range(len(group)), key=lambda k: results[k].score)
+            if results[best].score >= self.min_score:
+                refined.append(with_refinement(group[best], results[best]))
         return refined
 
     def refine_one(self, image_rgb: np.ndarray, camera: CameraIntrinsics, name: str,
                    rotation: np.ndarray, translation: np.ndarray,
                    histograms: ColorHistograms | None = None,
-                   iterations: int | None = None) -> Refinement:
+                   iterations: int | None = None, fine_only: bool = False) -> Refinement:
         """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
         return self.refiners[name].refine(image_rgb, camera, rotation, translation,
-                                          histograms, iterations)
+                                          histograms, iterations, fine_only)
 
 
 def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:

@@ -56,12 +56,17 @@ class ColorHistograms:
         return ColorHistograms((1.0 - rate) * self.foreground + rate * other.foreground,
                                (1.0 - rate) * self.background + rate * other.background)
 
-    def foreground_probability(self, colors_rgb: np.ndarray) -> np.ndarray:
-        """(...) p(foreground | colour) for (..., 3) uint8 colours; 0.5 for unseen colours."""
-        bins = color_bins(colors_rgb)
-        p_f, p_b = self.foreground[bins], self.background[bins]
-        total = p_f + p_b
-        return np.where(total > 0.0, p_f / np.where(total > 0.0, total, 1.0), 0.5)
+    def log_posteriors(self, floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Per bin, log p(foreground | colour) and log p(background | colour).
+
+        Unseen colours get 0.5 each; posteriors are kept within [floor, 1 - floor] so that
+        one pixel cannot veto a whole line. Index the arrays with ``color_bins``.
+        """
+        total = self.foreground + self.background
+        p_f = np.where(total > 0.0, self.foreground / np.where(total > 0.0, total, 1.0), 0.5)
+        p_f = np.clip(p_f, floor, 1.0 - floor)
+        return np.log(p_f), np.log1p(-p_f)
 
 
 def _frequencies(colors_rgb):

@@ -44,7 +44,7 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import exp_so3
-from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 FUNCTION_LENGTH = 8         # segments of the smoothed step function
@@ -70,9 +70,6 @@ class RefinerConfig:
         newton_steps: pose updates per correspondence iteration.
         tikhonov_rotation: damping of the rotation step (per radian squared).
         tikhonov_translation: damping of the translation step (per metre squared).
-        tikhonov_depth: extra damping of the step along the camera's line of sight: the
-            silhouette hardly tells depth (a 2 % scale change moves a contour by a fraction
-            of a pixel), so the start's depth (from the box) is kept unless this is 0.
         histogram_rate: after each correspondence iteration the colour histograms move this
             far towards those seen at the current pose (0: keep the initial ones).
         min_continuous_px: a line needs this many pixels of uninterrupted foreground and
@@ -86,7 +83,6 @@ class RefinerConfig:
     newton_steps: int = 2
     tikhonov_rotation: float = 1000.0
     tikhonov_translation: float = 30000.0
-    tikhonov_depth: float = 1.0e6
     histogram_rate: float = 1.0
     min_continuous_px: float = 3.0
 
@@ -98,8 +94,7 @@ class RefinerConfig:
                              f'{self.standard_deviations}')
         if self.iterations < 1 or self.newton_steps < 1:
             raise InputError('refinement needs at least one iteration and one Newton step')
-        if not (self.tikhonov_rotation >= 0 and self.tikhonov_translation >= 0
-                and self.tikhonov_depth >= 0):
+        if not (self.tikhonov_rotation >= 0 and self.tikhonov_translation >= 0):
             raise InputError('Tikhonov damping must be >= 0')
         if not 0.0 <= self.histogram_rate <= 1.0:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
@@ -174,7 +169,7 @@ class RegionRefiner:
     def refine(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                rotation: npt.ArrayLike, translation: npt.ArrayLike,
                histograms: ColorHistograms | None = None,
-               iterations: int | None = None) -> Refinement:
+               iterations: int | None = None, fine_only: bool = False) -> Refinement:
         """
         Refine one pose.
 
@@ -186,6 +181,8 @@ class RegionRefiner:
             histograms: colour model to start from (a track's); None: measured around the
                 initial pose.
             iterations: correspondence iterations for this call (default: the config's).
+            fine_only: take the last ``iterations`` entries of the scale schedule (a track,
+                already close) instead of starting from the coarsest.
 
         Returns:
             A Refinement; a start behind the camera or with too few contour lines inside the
@@ -208,7 +205,8 @@ class RegionRefiner:
         if histograms is None:
             histograms = fresh
         iterations = config.iterations if iterations is None else iterations
-        for iteration in range(iterations):
+        offset = max(len(config.scales) - iterations, 0) if fine_only else 0
+        for iteration in range(offset, offset + iterations):
             scale = config.scales[min(iteration, len(config.scales) - 1)]
             sigma = config.standard_deviations[min(iteration,
                                                    len(config.standard_deviations) - 1)]
@@ -306,10 +304,10 @@ class RegionRefiner:
         if not valid.any():
             return None
         cols, rows = cols[valid], rows[valid]
-        p_f = histograms.foreground_probability(image_rgb[rows, cols])
-        p_f = np.clip(p_f, 1e-4, 1.0 - 1e-4).reshape(len(cols), LINE_SEGMENTS, scale)
-        log_f = np.log(p_f).sum(axis=2)
-        log_b = np.log1p(-p_f).sum(axis=2)
+        bins = color_bins(image_rgb[rows, cols]).reshape(len(cols), LINE_SEGMENTS, scale)
+        table_f, table_b = histograms.log_posteriors()
+        log_f = table_f[bins].sum(axis=2)
+        log_b = table_b[bins].sum(axis=2)
         top = np.maximum(log_f, log_b)
         seg_f, seg_b = np.exp(log_f - top), np.exp(log_b - top)
         total = seg_f + seg_b
@@ -344,8 +342,6 @@ class RegionRefiner:
         hessian = (jacobian * (weight / lines.variance)[:, None]).T @ jacobian
         damping = np.diag([self.config.tikhonov_rotation] * 3
                           + [self.config.tikhonov_translation] * 3)
-        line_of_sight = rotation.T @ (translation / np.linalg.norm(translation))
-        damping[3:, 3:] += self.config.tikhonov_depth * np.outer(line_of_sight, line_of_sight)
         theta = np.linalg.solve(hessian + damping, gradient)
         new_rotation = rotation @ exp_so3(theta[:3])
         new_translation = translation + rotation @ theta[3:]

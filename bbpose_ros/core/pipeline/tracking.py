@@ -1,0 +1,154 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Tracking over a stream: each refined pose seeds the next frame's refinement.
+
+Policy, per frame:
+
+1. every track is refined from its last pose with its own colour model (a few iterations:
+   the motion between frames is small); a track scored below ``min_track_score`` is lost;
+2. the full pipeline (detector, Q-Net, Bounding Box Equation, refinement) runs when there
+   are no tracks, when a track was lost in this frame, or every ``redetect_every`` frames
+   (new objects may have come into view);
+3. a detection of an object that is already tracked replaces the track only when its
+   refinement scores higher; other detections scored at least ``min_track_score`` start
+   tracks, the rest are reported for this frame only.
+
+Tracks are per object name (one instance of each object, as the node reports).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import time
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.pose_pipeline import FrameResult, PoseEstimate, PosePipeline
+from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.refine.color_histograms import ColorHistograms
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """
+    Settings of the tracker.
+
+    Attributes:
+        redetect_every: run the full pipeline at least every this many frames (1: always).
+        min_track_score: a track whose refinement scores below this (0..1) is lost.
+        iterations: correspondence iterations of a tracking refinement (the refiner's
+            last scales and standard deviations are used).
+        color_rate: how far a track's colour model moves towards each frame's (0..1).
+
+    """
+
+    redetect_every: int = 10
+    min_track_score: float = 0.5
+    iterations: int = 3
+    color_rate: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.redetect_every < 1 or self.iterations < 1:
+            raise InputError('tracking needs redetect_every >= 1 and iterations >= 1')
+        if not (0.0 <= self.min_track_score <= 1.0 and 0.0 <= self.color_rate <= 1.0):
+            raise InputError('min_track_score and color_rate must be in [0, 1]')
+
+
+@dataclass
+class Track:
+    """One tracked object: its last pose and the colour model learned over frames."""
+
+    pose: PoseEstimate
+    histograms: ColorHistograms | None = field(default=None, repr=False)
+
+
+class PoseTracker:
+    """
+    Runs a PosePipeline (with a refiner) over a stream, tracking refined poses.
+
+    Args:
+        pipeline: a PosePipeline with detector, rotation estimator and refiner.
+        config: TrackingConfig.
+
+    """
+
+    def __init__(self, pipeline: PosePipeline, config: TrackingConfig | None = None) -> None:
+        if not isinstance(pipeline.refiner, PoseRefiner):
+            raise InputError('tracking needs a pipeline with a PoseRefiner')
+        self.pipeline = pipeline
+        self.config = config or TrackingConfig()
+        self.tracks: dict[str, Track] = {}
+        self._since_detection = 0
+
+    def reset(self) -> None:
+        """Forget all tracks (a new camera, a jump back in time)."""
+        self.tracks.clear()
+        self._since_detection = 0
+
+    def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics) -> FrameResult:
+        """Track, detect when the policy says so, and return the frame's poses."""
+        start = time.perf_counter()
+        timings = {}
+        lost = self._follow_tracks(image_rgb, camera)
+        if self.tracks:
+            timings['tracking'] = _ms_since(start)
+        self._since_detection += 1
+        untracked = []
+        if not self.tracks or lost or self._since_detection >= self.config.redetect_every:
+            result = self.pipeline.estimate(image_rgb, camera)
+            timings.update(result.timings_ms)
+            untracked = self._adopt(result.poses)
+            self._since_detection = 0
+        timings['total'] = _ms_since(start)
+        return FrameResult([track.pose for track in self.tracks.values()] + untracked, timings)
+
+    def _follow_tracks(self, image_rgb, camera):
+        refiner = self.pipeline.refiner
+        lost = False
+        for name, track in list(self.tracks.items()):
+            result = refiner.refine_one(image_rgb, camera, name, track.pose.rotation,
+                                        track.pose.translation, track.histograms,
+                                        iterations=self.config.iterations, fine_only=True)
+            if not result.ok or result.score < self.config.min_track_score:
+                del self.tracks[name]
+                lost = True
+                continue
+            histograms = result.histograms if track.histograms is None else \
+                track.histograms.blended(result.histograms, self.config.color_rate)
+            self.tracks[name] = Track(replace(track.pose, rotation=result.rotation,
+                                              translation=result.translation,
+                                              refinement_score=result.score), histograms)
+        return lost
+
+    def _adopt(self, poses):
+        """Start or replace tracks with detected poses; return those of untracked objects."""
+        untracked = []
+        for pose in poses:
+            current = self.tracks.get(pose.object_name)
+            if current is not None:
+                if pose.confidence > current.pose.confidence:
+                    self.tracks[pose.object_name] = Track(pose)
+            elif pose.confidence >= self.config.min_track_score:
+                self.tracks[pose.object_name] = Track(pose)
+            else:
+                untracked.append(pose)
+        return untracked
+
+
+def _ms_since(start):
+    return (time.perf_counter() - start) * 1e3
