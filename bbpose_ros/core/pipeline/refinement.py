@@ -34,8 +34,9 @@ import numpy as np
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
-from bbpose_ros.core.refine.color_histograms import ColorHistograms
-from bbpose_ros.core.refine.region_refiner import Refinement, RefinerConfig, RegionRefiner
+from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
+from bbpose_ros.core.refine.region_refiner import (Refinement, RefinerConfig, refine_poses,
+                                                   RegionRefiner)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
@@ -61,6 +62,7 @@ class PoseRefiner:
             raise InputError(f'refinement min_score must be in [0, 1], got {min_score}')
         self.config = config or RefinerConfig()
         self.min_score = float(min_score)
+        self.viewpoint_models = dict(viewpoint_models)
         self.refiners = {name: RegionRefiner(model, self.config)
                          for name, model in viewpoint_models.items()}
 
@@ -86,17 +88,25 @@ class PoseRefiner:
             candidate unrefined.
 
         """
+        jobs = [(k, pose) for k, group in enumerate(candidates) for pose in group
+                if pose.object_name in self.viewpoint_models]
+        results = refine_poses(color_bins(image_rgb), camera,
+                               [self.viewpoint_models[pose.object_name] for _, pose in jobs],
+                               [pose.rotation for _, pose in jobs],
+                               [pose.translation for _, pose in jobs], self.config)
+        best = {}
+        for (k, pose), result in zip(jobs, results):
+            if k not in best or result.score > best[k][1].score:
+                best[k] = (pose, result)
         refined = []
-        for group in candidates:
-            name = group[0].object_name
-            if name not in self.refiners:
-                refined.append(group[0])
+        for k, group in enumerate(candidates):
+            if k not in best:
+                if group[0].object_name not in self.viewpoint_models:
+                    refined.append(group[0])
                 continue
-            results = [self.refine_one(image_rgb, camera, name, pose.rotation,
-                                       pose.translation) for pose in group]
-            best = max(range(len(group)), key=lambda k: results[k].score)
-            if results[best].score >= self.min_score:
-                refined.append(with_refinement(group[best], results[best]))
+            pose, result = best[k]
+            if result.score >= self.min_score:
+                refined.append(with_refinement(pose, result))
         return refined
 
     def refine_one(self, image_rgb: np.ndarray, camera: CameraIntrinsics, name: str,
@@ -106,6 +116,16 @@ class PoseRefiner:
         """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
         return self.refiners[name].refine(image_rgb, camera, rotation, translation,
                                           histograms, iterations, fine_only)
+
+    def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                      names: Sequence[str], rotations: Sequence[np.ndarray],
+                      translations: Sequence[np.ndarray],
+                      histograms: Sequence[ColorHistograms | None],
+                      iterations: int) -> list[Refinement]:
+        """Refine tracked poses in one batch, from the fine end of the scale schedule."""
+        return refine_poses(color_bins(image_rgb), camera,
+                            [self.viewpoint_models[name] for name in names], rotations,
+                            translations, self.config, histograms, iterations, fine_only=True)
 
 
 def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:

@@ -118,12 +118,17 @@ class PoseTracker:
         return FrameResult([track.pose for track in self.tracks.values()] + untracked, timings)
 
     def _follow_tracks(self, image_rgb, camera):
-        refiner = self.pipeline.refiner
+        """Refine every track from its last pose; drop the lost ones; tell if any was."""
+        if not self.tracks:
+            return False
+        names = list(self.tracks)
+        tracks = [self.tracks[name] for name in names]
+        results = self.pipeline.refiner.refine_tracks(
+            image_rgb, camera, names, [t.pose.rotation for t in tracks],
+            [t.pose.translation for t in tracks], [t.histograms for t in tracks],
+            self.config.iterations)
         lost = False
-        for name, track in list(self.tracks.items()):
-            result = refiner.refine_one(image_rgb, camera, name, track.pose.rotation,
-                                        track.pose.translation, track.histograms,
-                                        iterations=self.config.iterations, fine_only=True)
+        for name, track, result in zip(names, tracks, results):
             if not result.ok or result.score < self.config.min_track_score:
                 del self.tracks[name]
                 lost = True

@@ -25,10 +25,9 @@ _SHIFT = 4                  # 256 / BINS_PER_CHANNEL = 2 ** _SHIFT
 
 
 def color_bins(colors_rgb: np.ndarray) -> np.ndarray:
-    """(...) histogram bin of each (..., 3) uint8 RGB colour."""
-    colors = colors_rgb.astype(np.int32) >> _SHIFT
-    return (colors[..., 0] * BINS_PER_CHANNEL + colors[..., 1]) * BINS_PER_CHANNEL \
-        + colors[..., 2]
+    """(...) uint16 histogram bin of each (..., 3) uint8 RGB colour (an image: (H, W))."""
+    coarse = (np.asarray(colors_rgb) >> _SHIFT).astype(np.uint16)
+    return (coarse[..., 0] << 2 * _SHIFT) | (coarse[..., 1] << _SHIFT) | coarse[..., 2]
 
 
 @dataclass
@@ -45,32 +44,7 @@ class ColorHistograms:
     foreground: np.ndarray
     background: np.ndarray
 
-    @classmethod
-    def from_colors(cls, foreground_rgb: np.ndarray,
-                    background_rgb: np.ndarray) -> ColorHistograms:
-        """Histograms of (N, 3) and (M, 3) uint8 colour samples."""
-        return cls(_frequencies(foreground_rgb), _frequencies(background_rgb))
-
     def blended(self, other: ColorHistograms, rate: float) -> ColorHistograms:
         """(1 - rate) * self + rate * other: how a track learns its colours over frames."""
         return ColorHistograms((1.0 - rate) * self.foreground + rate * other.foreground,
                                (1.0 - rate) * self.background + rate * other.background)
-
-    def log_posteriors(self, floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-        """
-        Per bin, log p(foreground | colour) and log p(background | colour).
-
-        Unseen colours get 0.5 each; posteriors are kept within [floor, 1 - floor] so that
-        one pixel cannot veto a whole line. Index the arrays with ``color_bins``.
-        """
-        total = self.foreground + self.background
-        p_f = np.where(total > 0.0, self.foreground / np.where(total > 0.0, total, 1.0), 0.5)
-        p_f = np.clip(p_f, floor, 1.0 - floor)
-        return np.log(p_f), np.log1p(-p_f)
-
-
-def _frequencies(colors_rgb):
-    counts = np.bincount(color_bins(np.asarray(colors_rgb).reshape(-1, 3)),
-                         minlength=BINS_PER_CHANNEL ** 3).astype(float)
-    total = counts.sum()
-    return counts / total if total > 0 else counts

@@ -35,6 +35,7 @@ Pixel coordinates are continuous with pixel centres at integers (``CameraIntrins
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
 
@@ -44,7 +45,8 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import exp_so3
-from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
+from bbpose_ros.core.refine.color_histograms import (BINS_PER_CHANNEL, color_bins,
+                                                     ColorHistograms)
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 FUNCTION_LENGTH = 8         # segments of the smoothed step function
@@ -53,6 +55,7 @@ FUNCTION_AMPLITUDE = 0.43   # the step function goes from 0.5 + a to 0.5 - a
 FUNCTION_SLOPE = 0.5        # its slope, in segments
 LINE_SEGMENTS = FUNCTION_LENGTH + DISTRIBUTION_LENGTH - 1
 MAX_HISTOGRAM_RUN_PX = 20.0     # pixels on either side of the contour that feed the colours
+HISTOGRAM_STRIDE_PX = 2.0       # of which every second one is sampled
 AGREEMENT_PX = 2.0              # a line agrees when its contour lies this close (scale 1)
 
 
@@ -130,14 +133,15 @@ class Refinement:
 
 @dataclass
 class _Lines:
-    """Correspondence lines of one iteration (N valid lines)."""
+    """Correspondence lines of one iteration for N poses of P lines each."""
 
-    points_model: np.ndarray     # (N, 3)
-    centres_uv: np.ndarray       # (N, 2) projected contour points when the lines were made
-    normals_uv: np.ndarray       # (N, 2) unit 2D normals, outwards
-    mean: np.ndarray             # (N,) contour position along the line, segments
-    variance: np.ndarray         # (N,) segments squared
-    log_distribution: np.ndarray  # (N, DISTRIBUTION_LENGTH)
+    valid: np.ndarray            # (N, P) bool
+    points_model: np.ndarray     # (N, P, 3)
+    centres_uv: np.ndarray       # (N, P, 2) projected contour points when the lines were made
+    normals_uv: np.ndarray       # (N, P, 2) unit 2D normals, outwards
+    mean: np.ndarray             # (N, P) contour position along the line, segments
+    variance: np.ndarray         # (N, P) segments squared
+    distribution: np.ndarray     # (N, P, DISTRIBUTION_LENGTH)
 
 
 def _step_functions():
@@ -147,9 +151,13 @@ def _step_functions():
 
 
 _H_F, _H_B = _step_functions()
+_H_B32, _H_DIFF32 = _H_B.astype(np.float32), (_H_F - _H_B).astype(np.float32)
 _WINDOWS = np.arange(DISTRIBUTION_LENGTH)[:, None] + np.arange(FUNCTION_LENGTH)[None, :]
 _MIN_VARIANCE = max(1.0 / (2.0 * math.atanh(2.0 * FUNCTION_AMPLITUDE) ** 2), FUNCTION_SLOPE)
 _POSITIONS = np.arange(DISTRIBUTION_LENGTH) - (DISTRIBUTION_LENGTH - 1) / 2.0
+_NEAR = np.abs(_POSITIONS) <= AGREEMENT_PX
+_BINS = BINS_PER_CHANNEL ** 3
+_MIN_LINES = 6
 
 
 class RegionRefiner:
@@ -171,7 +179,7 @@ class RegionRefiner:
                histograms: ColorHistograms | None = None,
                iterations: int | None = None, fine_only: bool = False) -> Refinement:
         """
-        Refine one pose.
+        Refine one pose (``refine_poses`` with one pose of this object).
 
         Args:
             image_rgb: (H, W, 3) uint8 image matching ``camera``.
@@ -184,174 +192,233 @@ class RegionRefiner:
             fine_only: take the last ``iterations`` entries of the scale schedule (a track,
                 already close) instead of starting from the coarsest.
 
-        Returns:
-            A Refinement; a start behind the camera or with too few contour lines inside the
-            image comes back unchanged with its status, never as an exception.
-
         """
-        rotation = np.array(rotation, dtype=float).reshape(3, 3)
-        translation = np.array(translation, dtype=float).reshape(3)
         if image_rgb.shape[:2] != (camera.height, camera.width):
             raise InputError(f'image {image_rgb.shape[1]}x{image_rgb.shape[0]} does not match '
                              f'the camera {camera.width}x{camera.height}')
-        if not (np.all(np.isfinite(rotation)) and np.all(np.isfinite(translation))):
-            return Refinement(rotation, translation, 0.0, 'behind_camera', histograms)
-        if translation[2] <= 0.5 * self.model.diameter:
-            return Refinement(rotation, translation, 0.0, 'behind_camera', histograms)
-        config = self.config
-        fresh = self._line_colors(image_rgb, camera, rotation, translation)
-        if fresh is None:
-            return Refinement(rotation, translation, 0.0, 'outside_image', histograms)
-        if histograms is None:
-            histograms = fresh
-        iterations = config.iterations if iterations is None else iterations
-        offset = max(len(config.scales) - iterations, 0) if fine_only else 0
-        for iteration in range(offset, offset + iterations):
-            scale = config.scales[min(iteration, len(config.scales) - 1)]
-            sigma = config.standard_deviations[min(iteration,
-                                                   len(config.standard_deviations) - 1)]
-            lines = self._lines(image_rgb, camera, rotation, translation, histograms, scale)
-            if lines is None or len(lines.mean) < 6:
-                status = 'outside_image' if lines is None else 'too_few_lines'
-                return Refinement(rotation, translation, 0.0, status, histograms)
-            for _ in range(config.newton_steps):
-                rotation, translation = self._newton_step(camera, rotation, translation, lines,
-                                                          scale, sigma)
-                if translation[2] <= 0.5 * self.model.diameter:
-                    return Refinement(rotation, translation, 0.0, 'behind_camera', histograms)
-            if config.histogram_rate > 0.0:
-                seen = self._line_colors(image_rgb, camera, rotation, translation)
-                if seen is not None:
-                    histograms = histograms.blended(seen, config.histogram_rate)
-        score = self.score(image_rgb, camera, rotation, translation)
-        return Refinement(rotation, translation, score, 'ok', histograms)
+        return refine_poses(color_bins(image_rgb), camera, [self.model], [rotation],
+                            [translation], self.config, [histograms], iterations,
+                            fine_only)[0]
 
-    def score(self, image_rgb: np.ndarray, camera: CameraIntrinsics, rotation: np.ndarray,
-              translation: np.ndarray) -> float:
-        """
-        Share of the view's lines whose contour distribution (scale 1) peaks on the pose.
 
-        Colour models fitted to a few thousand pixels would explain almost any silhouette,
-        so the score is cross-validated: the lines of even index are judged with colours
-        learned on the odd ones and the other way round.
-        """
-        count = self.model.points.shape[1]
-        halves = np.arange(count) % 2 == 0
-        agreeing = 0
-        for judged in (halves, ~halves):
-            histograms = self._line_colors(image_rgb, camera, rotation, translation, ~judged)
-            if histograms is None:
-                continue
-            lines = self._lines(image_rgb, camera, rotation, translation, histograms, 1, judged)
-            if lines is None:
-                continue
-            near = np.abs(_POSITIONS) <= AGREEMENT_PX
-            mass = np.exp(lines.log_distribution)[:, near].sum(axis=1)
-            agreeing += np.count_nonzero(mass >= 0.5)
-        return float(agreeing / count)
+def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
+                 models: Sequence[ViewpointModel], rotations: Sequence[npt.ArrayLike],
+                 translations: Sequence[npt.ArrayLike], config: RefinerConfig,
+                 histograms: Sequence[ColorHistograms | None] | None = None,
+                 iterations: int | None = None, fine_only: bool = False) -> list[Refinement]:
+    """
+    Refine N poses in one image at once (all arrays carry the pose as first axis).
 
-    # -- correspondence lines -------------------------------------------------------------
+    Args:
+        bins: (H, W) ``color_bins`` of the image; H x W must match ``camera``.
+        camera: CameraIntrinsics of the image.
+        models: per pose, the ViewpointModel of its object (all with the same number of
+            points per view).
+        rotations: per pose, the (3, 3) initial model-to-camera rotation.
+        translations: per pose, the (3,) initial translation, metres.
+        config: RefinerConfig.
+        histograms: per pose, a colour model to start from, or None (measured around the
+            initial pose).
+        iterations: correspondence iterations (default: the config's).
+        fine_only: take the last ``iterations`` entries of the scale schedule (tracks,
+            already close) instead of starting from the coarsest.
 
-    def _project_view(self, camera, rotation, translation):
-        view = self.model.closest_view(rotation, translation)
-        points = self.model.points[view]
-        points_cam = points @ rotation.T + translation
-        z = points_cam[:, 2]
-        safe_z = np.where(z > 1e-6, z, 1e-6)
-        centres = np.column_stack([camera.fx * points_cam[:, 0] / safe_z + camera.cx,
-                                   camera.fy * points_cam[:, 1] / safe_z + camera.cy])
-        normals = (self.model.normals[view] @ rotation.T)[:, :2]
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-9)
+    Returns:
+        Per pose, a Refinement; a start behind the camera or with too few contour lines
+        inside the image comes back unchanged with its status, never as an exception.
+
+    """
+    count = len(models)
+    if bins.shape[:2] != (camera.height, camera.width):
+        raise InputError(f'image {bins.shape[1]}x{bins.shape[0]} does not match the camera '
+                         f'{camera.width}x{camera.height}')
+    if count == 0:
+        return []
+    rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
+    translation = np.array(translations, dtype=float).reshape(count, 3)
+    batch = _Batch(models, bins, camera, config.min_continuous_px)
+    status = np.full(count, 'ok', dtype=object)
+    finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
+    rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
+    status[~finite | (translation[:, 2] <= 0.5 * batch.diameters)] = 'behind_camera'
+    given = list(histograms) if histograms is not None else [None] * count
+    fresh_f, fresh_b, seen = batch.line_colors(rotation, translation)
+    status[(status == 'ok') & ~seen] = 'outside_image'
+    hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
+    hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
+    iterations = config.iterations if iterations is None else iterations
+    offset = max(len(config.scales) - iterations, 0) if fine_only else 0
+    for iteration in range(offset, offset + iterations):
+        active = status == 'ok'
+        if not active.any():
+            break
+        scale = config.scales[min(iteration, len(config.scales) - 1)]
+        sigma = config.standard_deviations[min(iteration, len(config.standard_deviations) - 1)]
+        lines = batch.lines(rotation, translation, hist_f, hist_b, scale)
+        few = active & (lines.valid.sum(axis=1) < _MIN_LINES)
+        status[few] = 'too_few_lines'
+        active &= ~few
+        for _ in range(config.newton_steps):
+            step_r, step_t = _newton_steps(camera, rotation, translation, lines, scale, sigma,
+                                           config)
+            before = rotation[active]
+            rotation[active] = before @ step_r[active]
+            translation[active] += np.einsum('nij,nj->ni', before, step_t[active])
+            behind = active & (translation[:, 2] <= 0.5 * batch.diameters)
+            status[behind] = 'behind_camera'
+            active &= ~behind
+        if config.histogram_rate > 0.0:
+            seen_f, seen_b, seen = batch.line_colors(rotation, translation)
+            update = active & seen
+            rate = config.histogram_rate
+            hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
+            hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
+    scores = batch.scores(rotation, translation)
+    return [Refinement(rotation[k], translation[k],
+                       float(scores[k]) if status[k] == 'ok' else 0.0, str(status[k]),
+                       ColorHistograms(hist_f[k], hist_b[k]))
+            for k in range(count)]
+
+
+class _Batch:
+    """The viewpoint models and image of one refine_poses call, with the line sampling."""
+
+    def __init__(self, models, bins, camera, min_continuous_px):
+        self.models = models
+        self.min_continuous_px = min_continuous_px
+        self.bins = bins.ravel()
+        self.camera = camera
+        self.diameters = np.array([m.diameter for m in models])
+        self.lines_per_view = models[0].points.shape[1]
+        if any(m.points.shape[1] != self.lines_per_view for m in models):
+            raise InputError('viewpoint models refined together need the same points per view')
+
+    def project(self, rotation, translation):
+        """Lines of each pose's closest view: model points, centres, normals, run lengths."""
+        views = [m.closest_view(r, t) for m, r, t in zip(self.models, rotation, translation)]
+        points = np.stack([m.points[v] for m, v in zip(self.models, views)])
+        normals_model = np.stack([m.normals[v] for m, v in zip(self.models, views)])
+        runs_f = np.stack([m.foreground_m[v] for m, v in zip(self.models, views)])
+        runs_b = np.stack([m.background_m[v] for m, v in zip(self.models, views)])
+        camera = self.camera
+        points_cam = np.einsum('npj,nij->npi', points, rotation) + translation[:, None, :]
+        z = points_cam[..., 2]
+        in_front = z > 1e-6
+        safe_z = np.where(in_front, z, 1e-6)
+        centres = np.stack([camera.fx * points_cam[..., 0] / safe_z + camera.cx,
+                            camera.fy * points_cam[..., 1] / safe_z + camera.cy], axis=-1)
+        normals = np.einsum('npj,nij->npi', normals_model, rotation[:, :2, :])
+        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
         px_per_m = camera.fx / safe_z
-        foreground_px = self.model.foreground_m[view] * px_per_m
-        background_px = self.model.background_m[view] * px_per_m
-        return points, centres, normals, foreground_px, background_px, z > 1e-6
+        return points, centres, normals, runs_f * px_per_m, runs_b * px_per_m, in_front
 
-    def _line_colors(self, image_rgb, camera, rotation, translation, chosen=None):
-        """Histograms of the pixels just inside and just outside the projected contour."""
-        points, centres, normals, foreground_px, background_px, in_front = self._project_view(
-            camera, rotation, translation)
+    def line_colors(self, rotation, translation, chosen=None):
+        """
+        Colour histograms just inside and just outside each pose's projected contour.
+
+        Returns:
+            ((N, BINS) foreground, (N, BINS) background, (N,) bool: enough pixels seen).
+
+        """
+        _, centres, normals, runs_f, runs_b, in_front = self.project(rotation, translation)
         if chosen is not None:
             in_front = in_front & chosen
-        offsets = np.arange(int(MAX_HISTOGRAM_RUN_PX)) + 0.5
-        inside = offsets[None, :] < np.minimum(foreground_px - 1.0, MAX_HISTOGRAM_RUN_PX)[:, None]
-        outside = offsets[None, :] < np.minimum(background_px - 1.0,
-                                                MAX_HISTOGRAM_RUN_PX)[:, None]
-        uv_in = centres[:, None, :] - offsets[None, :, None] * normals[:, None, :]
-        uv_out = centres[:, None, :] + offsets[None, :, None] * normals[:, None, :]
-        in_front = in_front[:, None]
-        f_colors = _gather(image_rgb, uv_in, inside & in_front)
-        b_colors = _gather(image_rgb, uv_out, outside & in_front)
-        if len(f_colors) < 20 or len(b_colors) < 20:
-            return None
-        return ColorHistograms.from_colors(f_colors, b_colors)
+        offsets = np.arange(0.5, MAX_HISTOGRAM_RUN_PX, HISTOGRAM_STRIDE_PX)
+        counts = []
+        for sign, runs in ((-1.0, runs_f), (1.0, runs_b)):
+            keep = (offsets < np.minimum(runs - 1.0, MAX_HISTOGRAM_RUN_PX)[..., None]) \
+                & in_front[..., None]
+            uv = centres[:, :, None, :] + sign * offsets[:, None] * normals[:, :, None, :]
+            cols = np.floor(uv[..., 0] + 0.5).astype(np.int64)
+            rows = np.floor(uv[..., 1] + 0.5).astype(np.int64)
+            keep &= (cols >= 0) & (cols < self.camera.width) & (rows >= 0) \
+                & (rows < self.camera.height)
+            pose = np.broadcast_to(np.arange(len(rotation))[:, None, None], keep.shape)
+            bins = self.bins[rows[keep] * self.camera.width + cols[keep]]
+            counts.append(np.bincount(pose[keep] * _BINS + bins,
+                                      minlength=len(rotation) * _BINS
+                                      ).reshape(len(rotation), _BINS).astype(float))
+        totals = [c.sum(axis=1, keepdims=True) for c in counts]
+        enough = (totals[0][:, 0] >= 10) & (totals[1][:, 0] >= 10)
+        return (counts[0] / np.maximum(totals[0], 1.0), counts[1] / np.maximum(totals[1], 1.0),
+                enough)
 
-    def _lines(self, image_rgb, camera, rotation, translation, histograms, scale, chosen=None):
-        points, centres, normals, foreground_px, background_px, in_front = self._project_view(
-            camera, rotation, translation)
-        if chosen is not None:
-            in_front = in_front & chosen
-        continuous = np.minimum(foreground_px, background_px)
-        valid = in_front & (continuous >= self.config.min_continuous_px)
+    def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None):
+        """The correspondence lines of every pose at ``scale`` (see _Lines)."""
+        points, centres, normals, runs_f, runs_b, in_front = self.project(rotation,
+                                                                          translation)
+        camera = self.camera
         length = LINE_SEGMENTS * scale
-        offsets = np.arange(length) - (length - 1) / 2.0
-        uv = centres[:, None, :] + offsets[None, :, None] * normals[:, None, :]
-        cols = np.floor(uv[..., 0] + 0.5).astype(np.int64)
-        rows = np.floor(uv[..., 1] + 0.5).astype(np.int64)
-        on_image = ((cols >= 0) & (cols < camera.width) & (rows >= 0)
-                    & (rows < camera.height)).all(axis=1)
-        valid &= on_image
-        if not valid.any():
-            return None
-        cols, rows = cols[valid], rows[valid]
-        bins = color_bins(image_rgb[rows, cols]).reshape(len(cols), LINE_SEGMENTS, scale)
-        table_f, table_b = histograms.log_posteriors()
-        log_f = table_f[bins].sum(axis=2)
-        log_b = table_b[bins].sum(axis=2)
-        top = np.maximum(log_f, log_b)
-        seg_f, seg_b = np.exp(log_f - top), np.exp(log_b - top)
-        total = seg_f + seg_b
-        seg_f, seg_b = seg_f / total, seg_b / total
-        terms = seg_f[:, _WINDOWS] * _H_F + seg_b[:, _WINDOWS] * _H_B
-        log_distribution = np.log(terms).sum(axis=2)
-        log_distribution -= log_distribution.max(axis=1, keepdims=True)
+        half = (length - 1) / 2.0
+        # A line is straight: it lies on the image when both its end pixels do.
+        ends = np.stack([centres - half * normals, centres + half * normals])
+        on_image = np.all((ends[..., 0] >= -0.5) & (ends[..., 0] < camera.width - 0.5)
+                          & (ends[..., 1] >= -0.5) & (ends[..., 1] < camera.height - 0.5),
+                          axis=0)
+        valid = in_front & (np.minimum(runs_f, runs_b) >= self.min_continuous_px) & on_image
+        if chosen is not None:
+            valid &= chosen
+        offsets = (np.arange(length) - half).astype(np.float32)
+        uv = centres.astype(np.float32)[:, :, None, :] \
+            + offsets[:, None] * normals.astype(np.float32)[:, :, None, :]
+        # Valid lines have coordinates >= -0.5, so truncating u + 0.5 rounds to the nearest
+        # pixel; invalid ones are clipped into the image and ignored.
+        cols = np.clip((uv[..., 0] + 0.5).astype(np.int32), 0, camera.width - 1)
+        rows = np.clip((uv[..., 1] + 0.5).astype(np.int32), 0, camera.height - 1)
+        line_bins = self.bins[rows * camera.width + cols]
+        total = hist_f + hist_b
+        p_f = np.where(total > 0.0, hist_f / np.where(total > 0.0, total, 1.0), 0.5)
+        p_f = np.clip(p_f, 1e-4, 1.0 - 1e-4)
+        log_ratio_table = (np.log(p_f) - np.log1p(-p_f)).astype(np.float32).ravel()
+        pose = np.arange(len(rotation))[:, None, None] * _BINS
+        log_ratio = log_ratio_table[pose + line_bins].reshape(
+            *valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
+        seg_f = 1.0 / (1.0 + np.exp(-np.clip(log_ratio, -50.0, 50.0)))
+        # h_f * p_f + h_b * (1 - p_f) = h_b + (h_f - h_b) * p_f, in float32 (the biggest array)
+        terms = _H_B32 + seg_f[..., _WINDOWS] * _H_DIFF32
+        log_distribution = np.log(terms).sum(axis=-1, dtype=np.float64)
+        log_distribution -= log_distribution.max(axis=-1, keepdims=True)
         distribution = np.exp(log_distribution)
-        distribution /= distribution.sum(axis=1, keepdims=True)
+        distribution /= distribution.sum(axis=-1, keepdims=True)
         mean = distribution @ _POSITIONS
         variance = np.maximum(distribution @ _POSITIONS ** 2 - mean ** 2, _MIN_VARIANCE)
-        return _Lines(points[valid], centres[valid], normals[valid], mean, variance,
-                      np.log(np.maximum(distribution, 1e-30)))
+        return _Lines(valid, points, centres, normals, mean, variance, distribution)
 
-    # -- optimisation ---------------------------------------------------------------------
+    def scores(self, rotation, translation):
+        """
+        (N,) share of each pose's lines whose contour distribution (scale 1) peaks on it.
 
-    def _newton_step(self, camera, rotation, translation, lines, scale, sigma):
-        points_cam = lines.points_model @ rotation.T + translation
-        x, y, z = points_cam.T
-        fx_z, fy_z = camera.fx / z, camera.fy / z
-        u = x * fx_z + camera.cx
-        v = y * fy_z + camera.cy
-        n_u, n_v = lines.normals_uv.T
-        delta = (n_u * (u - lines.centres_uv[:, 0]) + n_v * (v - lines.centres_uv[:, 1])) / scale
-        d_centre = np.column_stack([n_u * fx_z, n_v * fy_z,
-                                    -(n_u * x * fx_z + n_v * y * fy_z) / z]) / scale
-        d_translation = d_centre @ rotation
-        jacobian = np.hstack([np.cross(lines.points_model, d_translation), d_translation])
-        weight = _MIN_VARIANCE / (sigma / scale) ** 2
-        residual_gradient = weight * (lines.mean - delta) / lines.variance
-        gradient = jacobian.T @ residual_gradient
-        hessian = (jacobian * (weight / lines.variance)[:, None]).T @ jacobian
-        damping = np.diag([self.config.tikhonov_rotation] * 3
-                          + [self.config.tikhonov_translation] * 3)
-        theta = np.linalg.solve(hessian + damping, gradient)
-        new_rotation = rotation @ exp_so3(theta[:3])
-        new_translation = translation + rotation @ theta[3:]
-        return new_rotation, new_translation
+        Colour models fitted to a few thousand pixels would explain almost any silhouette,
+        so the score is cross-validated: the lines of odd index are judged with colours
+        learned on the even ones.
+        """
+        even = np.arange(self.lines_per_view) % 2 == 0
+        hist_f, hist_b, seen = self.line_colors(rotation, translation, even)
+        lines = self.lines(rotation, translation, hist_f, hist_b, 1, ~even)
+        agreeing = (lines.distribution[..., _NEAR].sum(axis=-1) >= 0.5) & lines.valid
+        return np.where(seen, agreeing.sum(axis=1) / np.count_nonzero(~even), 0.0)
 
 
-def _gather(image_rgb, uv, keep):
-    """(K, 3) colours at the kept (..., 2) positions that fall inside the image."""
-    height, width = image_rgb.shape[:2]
-    cols = np.floor(uv[..., 0] + 0.5).astype(np.int64)
-    rows = np.floor(uv[..., 1] + 0.5).astype(np.int64)
-    keep = keep & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
-    return image_rgb[rows[keep], cols[keep]]
+def _newton_steps(camera, rotation, translation, lines, scale, sigma, config):
+    """Per pose, the Newton step: (N, 3, 3) rotation increment, (N, 3) model-frame shift."""
+    points_cam = np.einsum('npj,nij->npi', lines.points_model, rotation) \
+        + translation[:, None, :]
+    x, y, z = np.moveaxis(points_cam, -1, 0)
+    z = np.where(np.abs(z) > 1e-6, z, 1e-6)
+    fx_z, fy_z = camera.fx / z, camera.fy / z
+    u = x * fx_z + camera.cx
+    v = y * fy_z + camera.cy
+    n_u, n_v = lines.normals_uv[..., 0], lines.normals_uv[..., 1]
+    delta = (n_u * (u - lines.centres_uv[..., 0]) + n_v * (v - lines.centres_uv[..., 1])) / scale
+    d_centre = np.stack([n_u * fx_z, n_v * fy_z, -(n_u * x * fx_z + n_v * y * fy_z) / z],
+                        axis=-1) / scale
+    d_translation = np.einsum('npi,nij->npj', d_centre, rotation)
+    jacobian = np.concatenate([np.cross(lines.points_model, d_translation), d_translation],
+                              axis=-1)
+    weight = np.where(lines.valid, _MIN_VARIANCE / (sigma / scale) ** 2 / lines.variance, 0.0)
+    weighted = jacobian * weight[..., None]
+    gradient = np.einsum('npk,np->nk', weighted, lines.mean - delta)
+    hessian = np.matmul(weighted.transpose(0, 2, 1), jacobian)
+    hessian += np.diag([config.tikhonov_rotation] * 3 + [config.tikhonov_translation] * 3)
+    theta = np.linalg.solve(hessian, gradient[..., None])[..., 0]
+    return np.stack([exp_so3(t) for t in theta[:, :3]]), theta[:, 3:]
