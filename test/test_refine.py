@@ -25,6 +25,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import perturb_pose, rotation_error_deg
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate, PosePipeline
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.refine.region_refiner import RefinerConfig, RegionRefiner
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at_rotation,
@@ -185,3 +186,48 @@ def test_pipeline_refines_and_rejects_by_score(viewpoint_models, lmo_models, lmo
     strict = PoseRefiner(models, min_score=0.4)
     assert strict(image, frame.camera, wrong) == []
     assert len(strict(image, frame.camera, result.poses[:1])) == 1
+
+
+def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, lmo_frames):
+    models, _ = viewpoint_models
+    frame = lmo_frames[0]
+    image = frame.load_image()
+    truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.5]
+    calls = []
+
+    def detector(image_rgb):
+        calls.append(1)
+        return [Detection(i.object_name, 0.9, i.box_uv) for i in truths]
+
+    def rotations(image_rgb, camera, detections):
+        by_name = {i.object_name: i.rotation for i in truths}
+        return np.stack([by_name[d.object_name] for d in detections])
+
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, detector, rotations,
+                            refiner=PoseRefiner(models))
+    tracker = PoseTracker(pipeline, TrackingConfig(redetect_every=3, min_track_score=0.3))
+    first = tracker.estimate(image, frame.camera)
+    assert len(calls) == 1 and 'detector' in first.timings_ms
+    assert sorted(tracker.tracks) == sorted(i.object_name for i in truths)
+    second = tracker.estimate(image, frame.camera)
+    assert len(calls) == 1 and 'tracking' in second.timings_ms
+    # Tracks stay near the truth they started from (the image, not the truth, is what the
+    # refiner fits, so they settle a little off it).
+    truth = {i.object_name: i for i in truths}
+    errors = [(rotation_error_deg(p.rotation, truth[p.object_name].rotation),
+               np.linalg.norm(p.translation - truth[p.object_name].translation))
+              for p in second.poses]
+    assert len(errors) == len(truths)
+    assert np.median([e[0] for e in errors]) < 8.0 and max(e[0] for e in errors) < 20.0
+    assert max(e[1] for e in errors) < 0.08
+    tracker.estimate(image, frame.camera)
+    assert len(calls) == 1
+    tracker.estimate(image, frame.camera)
+    assert len(calls) == 2                # the full pipeline runs every third frame
+    # An image the tracks do not fit loses them, and the full pipeline runs again.
+    tracker.estimate(np.zeros_like(image), frame.camera)
+    assert len(calls) == 3
+    tracker.reset()
+    assert tracker.tracks == {}
+    with pytest.raises(InputError, match='PoseRefiner'):
+        PoseTracker(PosePipeline(pipeline.models, detector, rotations))

@@ -128,13 +128,16 @@ def bench_graph(args, frames, values, overrides):
 
 def format_frames(report):
     """Make the stage table of a stage benchmark report."""
+    modes = [report, report['all_objects']] + ([report['tracking']] if 'tracking' in report
+                                                else [])
     lines = [f'{"stage (ms)":26s}{"median":>9s}{"p95":>9s}{"max":>9s}'
-             f'{"all: median":>13s}{"p95":>9s}{"max":>9s}']
-    rows = [(stage, report['stages'].get(stage), report['all_objects']['stages'].get(stage))
-            for stage in STAGES]
-    rows.append(('total', report['total'], report['all_objects']['total']))
-    for name, mine, everything in rows:
-        lines.append(f'{name:26s}{_cells(mine)}{_cells(everything, first=13)}')
+             f'{"all: median":>13s}{"p95":>9s}{"max":>9s}'
+             + (f'{"tracked: median":>17s}{"p95":>9s}{"max":>9s}' if len(modes) > 2 else '')]
+    for stage in STAGES + ('total',):
+        cells = [mode['total'] if stage == 'total' else mode['stages'].get(stage)
+                 for mode in modes]
+        lines.append(f'{stage:26s}' + ''.join(_cells(c, first=w)
+                                             for c, w in zip(cells, (9, 13, 17))))
     lines.append(f'fps {report["fps"]:.1f} (all objects {report["all_objects"]["fps"]:.1f}); '
                  f'objects per frame {report["objects_per_frame"]:.2f} (all objects '
                  f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '

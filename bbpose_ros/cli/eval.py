@@ -52,11 +52,14 @@ def add_parser(subparsers):
                              'among Q-Net hypotheses; 0: the best-scored one '
                              '(default %(default)s)')
     add_refinement_arguments(parser)
-    parser.add_argument('--perturb-gt', type=float_pair, default=None, metavar='DEG,MM',
+    parser.add_argument('--perturb-gt', type=float_pair, action='append', default=None,
+                        metavar='DEG,MM',
                         help='with --boxes gt --rotation gt: start each pose from the ground '
                              'truth turned DEG degrees about a random axis and moved MM '
                              'millimetres in a random direction, then refine it (the '
-                             "refiner's basin)")
+                             "refiner's basin). Repeat it for a sweep: the report is the "
+                             "first level's, with every level's means under 'sweep', and "
+                             '--plots draws refinement_basin.png')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the --perturb-gt perturbations (default %(default)s)')
     add_objects_argument(parser)
@@ -109,21 +112,29 @@ def run(args):
     dataset = BopDataset(args.dataset)
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
-    perturb = None
-    if args.perturb_gt is not None:
-        if args.boxes != 'gt' or args.rotation != 'gt':
-            raise InputError('--perturb-gt needs --boxes gt --rotation gt')
-        perturb = (args.perturb_gt[0], args.perturb_gt[1] / 1000.0)
+    levels = args.perturb_gt or [None]
+    if args.perturb_gt is not None and (args.boxes != 'gt' or args.rotation != 'gt'):
+        raise InputError('--perturb-gt needs --boxes gt --rotation gt')
     pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
                               args.qnet_weights, args.box_consistency_weight,
                               load_refiner(args, models))
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
-    scores, timings = score_frames(frames, pipeline, boxes=args.boxes,
-                                   rotation='gt' if args.rotation == 'gt' else 'estimator',
-                                   min_visib=args.min_visib, perturb=perturb, seed=args.seed)
-    report = make_report(scores, timings, len(frames))
+    sweep = []
+    for level in levels:
+        perturb = None if level is None else (level[0], level[1] / 1000.0)
+        level_scores, timings = score_frames(
+            frames, pipeline, boxes=args.boxes,
+            rotation='gt' if args.rotation == 'gt' else 'estimator', min_visib=args.min_visib,
+            perturb=perturb, seed=args.seed)
+        level_report = make_report(level_scores, timings, len(frames))
+        if level is not None:
+            sweep.append({'deg': level[0], 'mm': level[1], 'mean': level_report['mean']})
+        if len(sweep) <= 1:
+            report, scores = level_report, level_scores
+    if len(sweep) > 1:
+        report['sweep'] = sweep
     detection = None
     if recorder is not None:
         pipeline.detector = recorder.detector
@@ -137,6 +148,11 @@ def run(args):
                         'refine': args.refine, 'refine_min_score': args.refine_min_score,
                         'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
+    for level in report.get('sweep', []):
+        mean = level['mean']
+        print(f'start {level["deg"]:g} deg / {level["mm"]:g} mm: 5cm5deg {mean["cm5deg5"]:.3f}, '
+              f'ADD(-S) {mean["add_s_recall"]:.3f}, rotation median '
+              f'{mean["re_median_deg"]:.1f} deg')
     if detection is not None:
         print(f'\ndetector, IoU >= 0.5, instances with visib_fract >= {args.min_visib} '
               '(v30: >= 0.3)')
@@ -145,14 +161,16 @@ def run(args):
         write_json_atomic(args.json, report)
         print(f'report written to {args.json}')
     if args.plots is not None:
-        write_plots(args.plots, scores, report['objects'])
+        write_plots(args.plots, scores, report['objects'], report.get('sweep'))
         print(f'plots written to {args.plots}')
     return 0
 
 
-def write_plots(folder, scores, per_object):
+def write_plots(folder, scores, per_object, sweep=None):
     """Write the evaluation charts into ``folder`` (matplotlib is imported only here)."""
     from bbpose_ros.core.eval import plots
     plots.recall_curves(scores, folder / 'recall_curves.png')
     plots.object_bars(per_object, folder / 'objects.png')
     plots.errors_by_visibility(scores, folder / 'visibility.png')
+    if sweep:
+        plots.refinement_basin(sweep, folder / 'refinement_basin.png')

@@ -25,19 +25,24 @@ Speed of the pose pipeline stage by stage on real frames, and process readings (
   ``qnet_and_selection`` the two together (the Q-Net budget counts ``qnet`` only);
 * ``bbox_equation``: the Bounding Box Equation for all of them (one batched call), and
   ``bbox_equation_per_object`` the same divided by the number of objects;
+* ``refinement``: region-based refinement of all poses of the frame (when the pipeline
+  refines), and ``refinement_per_object`` the same divided by the number of poses;
 * ``messages``: building the frame's output messages.
 
 Buffers and messages are made by callables, so the ROS layer times the node's own code while
 this module stays ROS-free. Each frame is timed in two modes: ``detector`` (the detector's
 own detections, what the node does) and ``all_objects`` (the detector still runs, but Q-Net,
 the equation and the messages get the ground-truth amodal box of every annotated object of
-the frame: the worst case of the speed budget).
+the frame: the worst case of the speed budget). With a refining pipeline a third mode,
+``tracking``, times what a tracked frame costs: the frame's refined poses of the
+``all_objects`` mode refined again as tracks (``tracking_per_object``), without detector or
+Q-Net, plus image conversion and messages.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import os
 from pathlib import Path
 import resource
@@ -55,7 +60,8 @@ if TYPE_CHECKING:
     from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate, PosePipeline
 
 STAGES = ('image_conversion', 'detector', 'qnet', 'hypothesis_selection', 'qnet_and_selection',
-          'bbox_equation', 'bbox_equation_per_object', 'messages')
+          'bbox_equation', 'bbox_equation_per_object', 'refinement', 'refinement_per_object',
+          'tracking', 'tracking_per_object', 'messages')
 MODES = ('detector', 'all_objects')
 
 # The speed budgets (ms, on 2 CPU cores): (mode, stage, statistic, limit). They leave the
@@ -65,6 +71,16 @@ FRAME_BUDGETS = {
     'qnet_all_objects': ('all_objects', 'qnet', 'median_ms', 8.0),
     'detector': ('detector', 'detector', 'median_ms', 20.0),
     'frame_all_objects_p95': ('all_objects', 'total', 'p95_ms', 33.0),
+}
+# With refinement the frame may take two periods at 30 Hz; a tracked frame one.
+REFINED_FRAME_BUDGETS = {
+    'bbox_equation_per_object': FRAME_BUDGETS['bbox_equation_per_object'],
+    'qnet_all_objects': FRAME_BUDGETS['qnet_all_objects'],
+    'detector': FRAME_BUDGETS['detector'],
+    'refinement_per_object': ('all_objects', 'refinement_per_object', 'median_ms', 15.0),
+    'frame_all_objects_p95': ('all_objects', 'total', 'p95_ms', 66.0),
+    'tracking_per_object': ('tracking', 'tracking_per_object', 'median_ms', 3.0),
+    'frame_tracking_p95': ('tracking', 'total', 'p95_ms', 33.0),
 }
 GRAPH_LATENCY_P95_MS = 40.0
 GRAPH_RSS_GROWTH_PERCENT = 5.0
@@ -110,7 +126,7 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
                      to_buffer: Callable[[np.ndarray], Any],
                      from_buffer: Callable[[Any], np.ndarray],
                      build_messages: Callable[[list[PoseEstimate]], Any],
-                     warmup: int = 10) -> dict[str, Any]:
+                     warmup: int = 10, tracking_iterations: int = 3) -> dict[str, Any]:
     """
     Time the pipeline on each frame in both MODES and return the report.
 
@@ -121,31 +137,40 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
         from_buffer: that message -> (H, W, 3) uint8 RGB (the node's image conversion).
         build_messages: list of PoseEstimate -> the frame's output messages.
         warmup: untimed frames first (the first frames again), in both modes.
+        tracking_iterations: correspondence iterations of a tracking refinement.
 
     Returns:
         {'stages': {stage: latency_stats}, 'total', 'fps', 'objects_per_frame'} of the
-        detector mode, its 'all_objects' counterpart, 'peak_rss_mb',
-        'frames' and 'budgets' ({name: {'value', 'limit', 'met'}}).
+        detector mode, its 'all_objects' and (refining pipelines) 'tracking' counterparts,
+        'peak_rss_mb', 'frames' and 'budgets' ({name: {'value', 'limit', 'met'}}).
 
     """
     if not frames:
         raise InputError('no frames to benchmark')
-    timings = {mode: [] for mode in MODES}
+    refining = pipeline.refiner is not None
+    timings = {mode: [] for mode in MODES + (('tracking',) if refining else ())}
     for index in range(-warmup, len(frames)):
         frame = frames[index % len(frames)]
         buffer = to_buffer(frame.load_image())
         truth = ground_truth_detections(
             [i for i in frame.instances if np.all(np.isfinite(i.box_uv))])
         for mode, oracle in zip(MODES, (None, truth)):
-            times = _time_frame(pipeline, frame.camera, buffer, from_buffer, build_messages,
-                                oracle)
+            times, poses = _time_frame(pipeline, frame.camera, buffer, from_buffer,
+                                       build_messages, oracle)
             if index >= 0:
                 timings[mode].append(times)
+        if refining and index >= 0:
+            timings['tracking'].append(_time_tracking(pipeline, frame.camera, buffer,
+                                                      from_buffer, build_messages, poses,
+                                                      tracking_iterations))
     report = _summary(timings['detector'])
     report['all_objects'] = _summary(timings['all_objects'])
+    if refining:
+        report['tracking'] = _summary(timings['tracking'])
     report.update(peak_rss_mb=peak_rss_mb(), frames=len(frames))
+    budgets = REFINED_FRAME_BUDGETS if refining else FRAME_BUDGETS
     report['budgets'] = {name: budget(_frame_statistic(report, *where[:3]), where[3])
-                         for name, where in FRAME_BUDGETS.items()}
+                         for name, where in budgets.items()}
     return report
 
 
@@ -209,7 +234,7 @@ def budget(value: float | None, limit: float) -> dict[str, Any]:
 
 
 def _frame_statistic(report, mode, stage, statistic):
-    summary = report if mode == 'detector' else report[mode]
+    summary = report if mode == 'detector' else report.get(mode, {'stages': {}, 'total': {}})
     stats = summary['total'] if stage == 'total' else summary['stages'].get(stage, {})
     return stats.get(statistic)
 
@@ -225,7 +250,11 @@ def _summary(per_frame):
 
 
 def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
-    """One frame's {stage: ms, 'total': ms, 'objects': count}; ``oracle`` replaces detections."""
+    """
+    Time one frame: ({stage: ms, 'total': ms, 'objects': count}, its poses).
+
+    ``oracle`` replaces the detections.
+    """
     start = time.perf_counter()
     image = from_buffer(buffer)
     converted = time.perf_counter()
@@ -245,6 +274,29 @@ def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
             times['qnet_and_selection'] = times['qnet'] + times['hypothesis_selection']
         times['bbox_equation'] = result.timings_ms['translation']
         times['bbox_equation_per_object'] = times['bbox_equation'] / len(result.poses)
+        if 'refinement' in result.timings_ms:
+            times['refinement'] = result.timings_ms['refinement']
+            times['refinement_per_object'] = times['refinement'] / len(result.poses)
+    return times, result.poses
+
+
+def _time_tracking(pipeline, camera, buffer, from_buffer, build_messages, poses, iterations):
+    """A tracked frame's times: the given poses refined again as tracks (see the module)."""
+    start = time.perf_counter()
+    image = from_buffer(buffer)
+    converted = time.perf_counter()
+    results = pipeline.refiner.refine_tracks(
+        image, camera, [p.object_name for p in poses], [p.rotation for p in poses],
+        [p.translation for p in poses], [None] * len(poses), iterations)
+    tracked = time.perf_counter()
+    build_messages([replace(p, rotation=r.rotation, translation=r.translation)
+                    for p, r in zip(poses, results)])
+    end = time.perf_counter()
+    times = {'image_conversion': _ms(start, converted), 'messages': _ms(tracked, end),
+             'total': _ms(start, end), 'objects': len(poses)}
+    if poses:
+        times['tracking'] = _ms(converted, tracked)
+        times['tracking_per_object'] = times['tracking'] / len(poses)
     return times
 
 

@@ -121,6 +121,29 @@ def object_bars(per_object: Mapping[str, Mapping[str, Any]], path: Path | str,
     _save(figure, path)
 
 
+def refinement_basin(levels: Sequence[Mapping[str, Any]], path: Path | str) -> None:
+    """
+    Write 5cm5deg and ADD(-S) recall after refinement against the start's rotation error.
+
+    ``levels`` are {'deg', 'mm', 'mean': {'cm5deg5', 'add_s_recall'}} of ``bbpose eval
+    --perturb-gt`` runs, one per starting error; one line per start translation error.
+    """
+    figure, axes = _figure(2, width=10.0, height=4.0)
+    for axis, (key, label) in zip(axes, (('cm5deg5', '5 cm / 5 deg recall'),
+                                         ('add_s_recall', 'ADD(-S) recall'))):
+        for mm in sorted({level['mm'] for level in levels}):
+            chosen = sorted((level for level in levels if level['mm'] == mm),
+                            key=lambda level: level['deg'])
+            axis.plot([level['deg'] for level in chosen],
+                      [level['mean'][key] for level in chosen], marker='o',
+                      label=f'start moved {mm:g} mm')
+        axis.set(xlabel='start rotation error (deg)', ylabel=label, ylim=(0.0, 1.0))
+        axis.grid(alpha=0.3)
+    axes[0].legend(fontsize='small')
+    figure.suptitle('region-based refinement from perturbed ground truth')
+    _save(figure, path)
+
+
 def _figure(columns, width, height):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
