@@ -31,6 +31,7 @@ from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.synth.placement import viewpoint_angles, viewpoint_rotation
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
+from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
                                                     QNetTrainSettings)
@@ -41,6 +42,7 @@ from bbpose_ros.core.training.verifier_training import (candidate_targets, Candi
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
+CPU = TrainingDevice('cpu')
 
 
 @pytest.mark.parametrize('hypotheses', [1, 3])
@@ -56,7 +58,7 @@ def test_tiny_qnet_run_lowers_the_loss(hypotheses):
     optimizer = torch.optim.Adam(net.parameters(), 3e-3)
     losses = []
     for _ in range(60):
-        loss = qnet_loss(net, crops, index, target, valid).mean()
+        loss = qnet_loss(net.hypotheses(crops, index), target, valid).mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -199,7 +201,7 @@ def _mined(scenes=4):
     torch.manual_seed(0)
     network = CenterBoxNet(DetectorConfig(OBJECTS, verifier_channels=(8, 8, 16, 16)))
     settings = VerifierTrainSettings(batch=32, mined_per_class=2, val_fraction=0.25)
-    return cache, network, settings, CandidateCrops(network, cache, settings, 0, False)
+    return cache, network, settings, CandidateCrops(network, cache, settings, 0, CPU, False)
 
 
 def test_candidate_crops_are_labelled_by_the_true_boxes():
@@ -233,9 +235,9 @@ def test_tiny_verifier_run_lowers_the_loss():
     settings.augment = 0.0
     optimizer = torch.optim.Adam(network.verifier.parameters(), 3e-3)
     network.verifier.train()
-    losses = [verifier_step(network.verifier, optimizer, batches) for _ in range(40)]
+    losses = [verifier_step(network.verifier, optimizer, batches, CPU) for _ in range(40)]
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
-    figures = verifier_validation(network.verifier, batches)
+    figures = verifier_validation(network.verifier, batches, CPU)
     assert 0 <= figures['val_accuracy'] <= 1 and np.isfinite(figures['val_loss'])
 
 

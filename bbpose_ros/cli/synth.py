@@ -26,7 +26,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from bbpose_ros.cli.common import add_inplane_argument, with_inplane_range
+from bbpose_ros.cli.common import add_dataset_argument, add_inplane_argument, \
+    with_inplane_range
 from bbpose_ros.core.data.bop import read_json
 from bbpose_ros.core.data.models import load_bop_models, resolve_object_names
 from bbpose_ros.core.errors import InputError
@@ -44,8 +45,7 @@ def add_parser(subparsers):
         description="Render synthetic scenes of a BOP dataset's object meshes (random "
                     'poses, distractors, backgrounds and camera effects) with their exact '
                     'ground truth.')
-    parser.add_argument('--dataset', required=True, type=Path,
-                        help='BOP dataset folder with camera.json and models/')
+    add_dataset_argument(parser)
     parser.add_argument('--out', required=True, type=Path,
                         help='output folder (must not exist yet)')
     parser.add_argument('--count', required=True, type=int, help='number of images')

@@ -19,9 +19,13 @@
   ~/.cache/bbpose/train), resumable; the detector trains on it.
 * ``bbpose train render-crops``: object-centred Q-Net crops -> a crop cache folder
   (``--cache``), resumable; Q-Net trains on either kind of cache.
+* ``bbpose train import-bop``: annotated images of a BOP split (PBR renders, real frames)
+  -> a scene cache, or with ``--kind crops`` a crop cache, resumable; never the evaluation
+  frames.
 * ``bbpose train detector`` / ``bbpose train qnet``: train from the cache within a step and/or
-  time budget; ``--run-dir`` holds checkpoint.pt (resumed), log.csv, train.log, loss.png and
-  the weight file; ``--export`` copies the weight file (e.g. to bbpose_ros/weights/).
+  time budget, on ``--device`` cpu or cuda; ``--run-dir`` holds checkpoint.pt (resumed, on
+  either device), log.csv, train.log, loss.png and the weight file; ``--export`` copies the
+  weight file (e.g. to bbpose_ros/weights/).
 * ``bbpose train verifier``: the detector's second stage, on the candidates a trained
   detector (``--detector-weights``) finds in a scene cache; writes both stages in one file.
 * ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
@@ -35,9 +39,11 @@ from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_inplane_argument,
                                    add_objects_argument, with_inplane_range)
+from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.training.device import DEVICES, training_device
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
 VERIFIER_CHANNELS = (12, 24, 48, 48)
@@ -47,17 +53,16 @@ DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose
 def add_parser(subparsers):
     """Register ``bbpose train`` and its sub-subcommands."""
     parser = subparsers.add_parser(
-        'train', help='train the detector or Q-Net on synthetic renders',
-        description='Render synthetic training scenes once, then train the learned stages.')
+        'train', help='train the detector or Q-Net on renders or annotated BOP images',
+        description='Render synthetic training scenes once (or import annotated BOP images), '
+                    'then train the learned stages on the CPU or a CUDA GPU.')
     sub = parser.add_subparsers(dest='stage', metavar='STAGE', required=True)
 
     render = sub.add_parser('render', help='render a training cache')
     _common(render)
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
-    render.add_argument('--input-size', type=_int_tuple, default=(320, 240), metavar='W,H',
-                        help="the detector's input size the frames are stored at; multiples "
-                             'of 16 (default 320,240)')
+    _input_size_option(render)
     _backgrounds_option(render)
     add_inplane_argument(render)
     render.set_defaults(func=run_render)
@@ -66,15 +71,28 @@ def add_parser(subparsers):
     _common(crops)
     crops.add_argument('--crops', type=int, default=80000, help='crops to render')
     crops.add_argument('--workers', type=int, default=2, help='rendering processes')
-    crops.add_argument('--crop-size', type=int, default=64,
-                       help='stored crop side (Q-Net resizes to its own)')
-    crops.add_argument('--context', type=float, default=1.2,
-                       help="crop side / longest box side (Q-Net's context)")
-    crops.add_argument('--box-sigma', type=float, default=0.06,
-                       help='box jitter: per-side error / box size')
+    _crop_options(crops)
     _backgrounds_option(crops)
     add_inplane_argument(crops)
     crops.set_defaults(func=run_render_crops)
+
+    bop = sub.add_parser('import-bop', help='fill a training cache from annotated BOP images',
+                         description='Fill a scene cache (detector) or a crop cache (Q-Net) '
+                                     'from the annotated images of a BOP split: PBR renders '
+                                     'such as train_pbr, real frames, your own captures. '
+                                     'Meshes and the cache camera come from --dataset. The '
+                                     "dataset's evaluation frames are refused.")
+    _common(bop)
+    bop.add_argument('--images', type=Path, required=True,
+                     help='BOP folder holding camera.json and the split')
+    bop.add_argument('--split', required=True, help='split folder name, e.g. train_pbr')
+    bop.add_argument('--kind', choices=('scenes', 'crops'), default='scenes',
+                     help="'scenes': the detector's scene cache (Q-Net trains on it too); "
+                          "'crops': a Q-Net crop cache (default %(default)s)")
+    bop.add_argument('--workers', type=int, default=2, help='importing processes')
+    _input_size_option(bop)
+    _crop_options(bop)
+    bop.set_defaults(func=run_import_bop)
 
     for stage, func in (('detector', run_detector), ('qnet', run_qnet)):
         stage_parser = sub.add_parser(stage, help=f'train the {stage}')
@@ -95,6 +113,21 @@ def add_parser(subparsers):
     _budget(fig3, steps=3000)
     _qnet_options(fig3)
     fig3.set_defaults(func=run_fig3)
+
+
+def _input_size_option(parser):
+    parser.add_argument('--input-size', type=_int_tuple, default=(320, 240), metavar='W,H',
+                        help="the detector's input size the frames are stored at; multiples "
+                             'of 16 (default 320,240)')
+
+
+def _crop_options(parser):
+    parser.add_argument('--crop-size', type=int, default=64,
+                        help='stored crop side (Q-Net resizes to its own)')
+    parser.add_argument('--context', type=float, default=1.2,
+                        help="crop side / longest box side (Q-Net's context)")
+    parser.add_argument('--box-sigma', type=float, default=0.06,
+                        help='box jitter: per-side error / box size')
 
 
 def _detector_options(parser):
@@ -147,6 +180,9 @@ def _budget(parser, steps=20000):
     parser.add_argument('--lr', type=float, default=None, help='peak learning rate')
     parser.add_argument('--max-shards', type=int, default=None,
                         help='use only the first N cache shards')
+    parser.add_argument('--device', choices=DEVICES, default=None,
+                        help='train on the CPU or a CUDA GPU (automatic mixed precision); '
+                             'default: cuda when torch sees a GPU, else cpu')
 
 
 def _qnet_options(parser):
@@ -227,17 +263,51 @@ def _load(args):
     return cache, models
 
 
-def run_render(args):
-    """Render the training cache."""
-    from bbpose_ros.core.data.bop import BopDataset
-    from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
-    from bbpose_ros.core.training.cache import build_cache
+def _check_input_size(args):
     if len(args.input_size) != 2 or any(side <= 0 or side % 16 for side in args.input_size):
         raise InputError(f'--input-size must be W,H in positive multiples of 16, '
                          f'got {args.input_size}')
-    dataset = BopDataset(args.dataset)
-    models = dataset.load_models(args.objects)
-    camera = dataset.frames()[0].camera
+
+
+def _cache_camera(dataset_dir):
+    """
+    Return the camera of a dataset's caches: its first test frame's, else camera.json's.
+
+    Rendered and imported caches of one dataset get the same camera, so they mix.
+    """
+    from bbpose_ros.cli.synth import load_camera
+    from bbpose_ros.core.data.bop import BopDataset
+    if not Path(dataset_dir).is_dir():
+        raise InputError(f'dataset folder not found: {dataset_dir}')
+    if not (Path(dataset_dir) / 'test').is_dir():
+        return load_camera(dataset_dir)
+    frames = BopDataset(dataset_dir).frames()
+    return frames[0].camera if frames else load_camera(dataset_dir)
+
+
+def _evaluation_images(args):
+    """
+    Images no cache may import: the test frames of ``--dataset`` and of the default dataset.
+
+    They are what ``--real-val``, ``bbpose eval`` and ``replay-eval`` score.
+    """
+    from bbpose_ros.core.data.bop import BopDataset
+    default = Path(os.environ.get('BBPOSE_DATASET', DEFAULT_DATASET))
+    paths = []
+    for root in {Path(args.dataset).resolve(), default.resolve()}:
+        if (root / 'test').is_dir() and (root / 'camera.json').is_file():
+            paths += [frame.image_path for frame in BopDataset(root).frames()]
+    return paths
+
+
+def run_render(args):
+    """Render the training cache."""
+    from bbpose_ros.core.data.models import load_bop_models
+    from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
+    from bbpose_ros.core.training.cache import build_cache
+    _check_input_size(args)
+    camera = _cache_camera(args.dataset)
+    models = load_bop_models(args.dataset, args.objects)
     scenes = SyntheticScenes(models, camera, seed=args.seed,
                              config=with_inplane_range(SynthConfig(), args),
                              backgrounds=_photos(args))
@@ -247,15 +317,43 @@ def run_render(args):
 
 def run_render_crops(args):
     """Render the Q-Net crop cache."""
-    from bbpose_ros.core.data.bop import BopDataset
+    from bbpose_ros.core.data.models import load_bop_models
     from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
     from bbpose_ros.core.training.crop_cache import build_crop_cache
-    dataset = BopDataset(args.dataset)
-    scenes = CropScenes(dataset.load_models(args.objects), dataset.frames()[0].camera,
-                        seed=args.seed, config=with_inplane_range(CROP_SYNTH_CONFIG, args),
+    camera = _cache_camera(args.dataset)
+    scenes = CropScenes(load_bop_models(args.dataset, args.objects), camera, seed=args.seed,
+                        config=with_inplane_range(CROP_SYNTH_CONFIG, args),
                         crop_size=args.crop_size, context=args.context,
                         box_sigma=args.box_sigma, backgrounds=_photos(args))
     build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
+    return 0
+
+
+def run_import_bop(args):
+    """Fill a scene or crop cache from the annotated images of a BOP split."""
+    from bbpose_ros.core.data.models import load_bop_models
+    from bbpose_ros.core.training.bop_import import (BopImages, import_crop_cache,
+                                                     import_scene_cache)
+    if args.kind == 'scenes':
+        _check_input_size(args)
+    elif args.crop_size < 8 or args.context <= 0 or args.box_sigma < 0:
+        raise InputError(f'--crop-size must be at least 8, --context positive and --box-sigma '
+                         f'non-negative, got {args.crop_size}, {args.context}, '
+                         f'{args.box_sigma}')
+    if args.workers < 1:
+        raise InputError(f'--workers must be at least 1, got {args.workers}')
+    images = BopImages(args.images, args.split, _evaluation_images(args))
+    camera = _cache_camera(args.dataset)
+    models = load_bop_models(args.dataset, args.objects)
+    if args.kind == 'scenes':
+        count = import_scene_cache(images, args.cache, camera, models, args.input_size,
+                                   workers=args.workers)
+    else:
+        count = import_crop_cache(images, args.cache, camera, models, args.crop_size,
+                                  args.context, args.box_sigma, seed=args.seed,
+                                  workers=args.workers)
+    print(f'{args.cache}: {count} {"scenes" if args.kind == "scenes" else "crops"} from '
+          f'{len(images.frames)} images of {args.images} split {args.split}')
     return 0
 
 
@@ -264,6 +362,7 @@ def run_detector(args):
     from bbpose_ros.core.nets.detector import DetectorConfig
     from bbpose_ros.core.training.detector_training import DetectorTrainSettings
     from bbpose_ros.core.training.runs import train_detector
+    device = training_device(args.device)
     cache, models = _load(args)
     config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size),
                             backbone=args.backbone)
@@ -278,7 +377,7 @@ def run_detector(args):
                          f'size {tuple(cache.input_size)}, got {tuple(window)}')
     train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
-                   args.every)
+                   args.every, device=device)
     return 0
 
 
@@ -294,6 +393,7 @@ def run_verifier(args):
         raise InputError(f'--crop-size must be a positive multiple of 8, got {args.crop_size}')
     if len(args.channels) != 4:
         raise InputError(f'--channels needs 4 widths, got {len(args.channels)}')
+    device = training_device(args.device)
     detector = load_network(args.detector_weights, 'detector')
     cache = TrainingCache([args.cache, *args.extra_cache], args.max_shards)
     if tuple(cache.input_size) != tuple(detector.config.input_size):
@@ -308,7 +408,7 @@ def run_verifier(args):
         real = RealDetections(BopDataset(args.dataset).frames(), cascade.config.objects)
     train_verifier(cache, cascade, _settings(VerifierTrainSettings(), args), args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
-                   args.every, real_frames=real)
+                   args.every, real_frames=real, device=device)
     return 0
 
 
@@ -317,6 +417,7 @@ def _qnet_setup(args):
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     if args.hypotheses < 1:
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
+    device = training_device(args.device)
     cache, models = _load(args)
     try:
         config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
@@ -331,29 +432,30 @@ def _qnet_setup(args):
         settings.box_sigma = _measured_sigma(args.box_sigma_from)
     if args.box_sigma is not None:
         settings.box_sigma = args.box_sigma
-    return cache, models, config, settings
+    return cache, models, config, settings, device
 
 
 def run_qnet(args):
     """Train Q-Net."""
     from bbpose_ros.core.training.runs import train_qnet
-    cache, models, config, settings = _qnet_setup(args)
+    cache, models, config, settings, device = _qnet_setup(args)
     real = None
     if args.real_val:
         from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealCrops
         real = RealCrops(BopDataset(args.dataset).frames(), config.objects, models)
     train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
-               args.seed, args.threads, args.export, args.every, real_crops=real)
+               args.seed, args.threads, args.export, args.every, real_crops=real,
+               device=device)
     return 0
 
 
 def run_fig3(args):
     """Train Q-Net with and without q-normalization and plot both losses."""
     from bbpose_ros.core.training.fig3 import q_normalization_experiment
-    cache, models, config, settings = _qnet_setup(args)
+    cache, models, config, settings, device = _qnet_setup(args)
     summary = q_normalization_experiment(cache, models, config, settings, args.run_dir,
-                                         args.steps, args.seed, args.threads)
+                                         args.steps, args.seed, args.threads, device=device)
     print(json.dumps(summary, indent=1))
     return 0
 

@@ -65,8 +65,9 @@ class GroundTruthInstance:
         rotation: (3, 3) model-to-camera rotation.
         translation: (3,) metres, camera frame.
         box_uv: (4,) amodal box (whole projected model, hidden parts included),
-            [u_min, v_min, u_max, v_max] continuous pixels.
-        visible_box_uv: (4,) box of the visible pixels, same convention.
+            [u_min, v_min, u_max, v_max] continuous pixels; NaN when the annotation has
+            none (``bbox_obj`` absent, or BOP's -1 for an object out of view).
+        visible_box_uv: (4,) box of the visible pixels, same convention (NaN likewise).
         visib_fract: visible fraction of the projected object, 0..1.
 
     """
@@ -120,6 +121,13 @@ def _field(record, key, path, where, shape=None):
         return value if shape is None else np.asarray(value, dtype=float).reshape(shape)
     except (KeyError, TypeError, ValueError) as err:
         raise InputError(f'{path}: {where} has no valid "{key}" ({err})') from err
+
+
+def _optional_box(info, key, scene_dir, where):
+    """Read a scene_gt_info box as ``bop_box_to_uv`` gives it; an absent one is NaN."""
+    if isinstance(info, dict) and key not in info:
+        return np.full(4, np.nan)
+    return bop_box_to_uv(_field(info, key, scene_dir / 'scene_gt_info.json', where, (4,)))
 
 
 class BopDataset:
@@ -210,11 +218,8 @@ class BopDataset:
                 rotation=_field(gt, 'cam_R_m2c', scene_dir / 'scene_gt.json', where, (3, 3)),
                 translation=_field(gt, 'cam_t_m2c', scene_dir / 'scene_gt.json', where,
                                    (3,)) * MM_TO_M,
-                box_uv=bop_box_to_uv(_field(info, 'bbox_obj', scene_dir / 'scene_gt_info.json',
-                                            where, (4,))),
-                visible_box_uv=bop_box_to_uv(_field(info, 'bbox_visib',
-                                                    scene_dir / 'scene_gt_info.json', where,
-                                                    (4,))),
+                box_uv=_optional_box(info, 'bbox_obj', scene_dir, where),
+                visible_box_uv=_optional_box(info, 'bbox_visib', scene_dir, where),
                 visib_fract=float(_field(info, 'visib_fract',
                                          scene_dir / 'scene_gt_info.json', where))))
         return tuple(instances)

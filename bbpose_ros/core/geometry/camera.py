@@ -90,6 +90,18 @@ class CameraIntrinsics:
                                 (self.cx - u_min) * scale - 0.5,
                                 (self.cy - v_min) * scale - 0.5, int(size), int(size))
 
+    def pixel_map_to(self, other: 'CameraIntrinsics') -> np.ndarray:
+        """
+        Return the (2, 3) affine map from this camera's pixels to ``other``'s (same frame).
+
+        The ray through (u, v) here meets ``other``'s image at (fx'/fx (u - cx) + cx',
+        fy'/fy (v - cy) + cy'): exact for two pinhole cameras at one pose, so an image
+        resampled with it (``cv2.warpAffine``) is what ``other`` sees, and a box maps to a
+        box.
+        """
+        sx, sy = other.fx / self.fx, other.fy / self.fy
+        return np.array([[sx, 0.0, other.cx - sx * self.cx], [0.0, sy, other.cy - sy * self.cy]])
+
     def project(self, points_cam: npt.ArrayLike) -> np.ndarray:
         """Project (..., 3) points in the camera frame (metres) to (..., 2) pixels (u, v)."""
         points_cam = np.asarray(points_cam, dtype=float)

@@ -12,4 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Training of the learned stages: rendered caches, augmentation, loops, checkpoints."""
+"""Training of the learned stages: caches (rendered, imported), loops, devices, checkpoints."""

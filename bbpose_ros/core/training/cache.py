@@ -13,11 +13,12 @@
 # limitations under the License.
 
 """
-A rendered training set on disk: synthetic scenes turned into detector inputs and crops.
+A training set of scenes on disk: frames turned into detector inputs and crops.
 
 Rendering on the CPU is far slower than training, so scenes are rendered
-once, in shards of ``SHARD_SIZE``, and reused for many epochs with online augmentation. A
-shard ``shard_NNNNN.npz`` holds, for its scenes:
+once, in shards of ``SHARD_SIZE``, and reused for many epochs with online augmentation.
+Annotated BOP images fill the same format (``bop_import``). A shard ``shard_NNNNN.npz``
+holds, for its scenes:
 
 * ``images`` (n, H_in, W_in, 3) uint8: the frame resized to the detector input size;
 * per instance (m of them, visible fraction >= MIN_VISIB): ``scene`` (m,) index into
@@ -32,11 +33,11 @@ so an interrupted build resumes where it stopped.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import json
 import multiprocessing
 from pathlib import Path
-from typing import Any, TYPE_CHECKING
+from typing import Any, Protocol, TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -65,24 +66,56 @@ def _init_worker(scenes, input_size):
     _WORKER['input_size'] = input_size
 
 
-def _render(index):
-    """Render scene ``index`` in a worker; returns (small image, instance records)."""
-    scenes, (in_w, in_h) = _WORKER['scenes'], _WORKER['input_size']
-    sample = scenes.sample(index)
-    small = cv2.resize(sample.image_rgb, (in_w, in_h), interpolation=cv2.INTER_AREA)
-    kept = [i for i in sample.instances if i.visib_fract >= MIN_VISIB]
+class Instance(Protocol):
+    """The ground truth of an object in a frame, as a synthetic or a BOP instance holds it."""
+
+    object_name: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    box_uv: np.ndarray
+    visib_fract: float
+
+
+def scene_entry(image_rgb: np.ndarray, instances: Iterable[Instance],
+                objects: Sequence[str],
+                input_size: Sequence[int]) -> tuple[np.ndarray, dict[str, np.ndarray] | None]:
+    """
+    Make one scene of a shard: the frame at the detector input size, its instance records.
+
+    Args:
+        image_rgb: (H, W, 3) uint8 full frame of the cache's camera.
+        instances: its ground truth (box_uv in the frame's continuous pixels), all of objects
+            in ``objects``; those under MIN_VISIB visible are left out.
+        objects: the cache's object names (``object`` indexes them).
+        input_size: (width, height) of the stored detector image.
+
+    Returns:
+        ((H_in, W_in, 3) uint8 image, dict of instance arrays as in the module docstring, or
+        None when no instance is kept).
+
+    """
+    small = cv2.resize(image_rgb, tuple(input_size), interpolation=cv2.INTER_AREA)
+    kept = [i for i in instances if i.visib_fract >= MIN_VISIB]
     if not kept:
         return small, None
     boxes = np.stack([i.box_uv for i in kept])
     squares = square_boxes(boxes, CROP_CONTEXT)
     records = {
-        'object': np.array([scenes.target_names.index(i.object_name) for i in kept]),
+        'object': np.array([objects.index(i.object_name) for i in kept]),
         'box_uv': boxes, 'visib': np.array([i.visib_fract for i in kept]),
         'rotation': np.stack([i.rotation for i in kept]),
         'translation': np.stack([i.translation for i in kept]),
-        'crop': extract_crops(sample.image_rgb, squares, CROP_SIZE), 'square': squares,
+        'crop': extract_crops(image_rgb, squares, CROP_SIZE), 'square': squares,
     }
     return small, records
+
+
+def _render(index):
+    """Render scene ``index`` in a worker; returns ``scene_entry``'s (image, records)."""
+    scenes = _WORKER['scenes']
+    sample = scenes.sample(index)
+    return scene_entry(sample.image_rgb, sample.instances, scenes.target_names,
+                       _WORKER['input_size'])
 
 
 def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
@@ -101,29 +134,35 @@ def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
     """
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
-    camera = scenes.camera
     meta = {'objects': scenes.target_names, 'seed': scenes.seed,
-            'camera': [camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-                       camera.height],
-            'input_size': list(input_size), 'crop_size': CROP_SIZE,
+            'camera': camera_meta(scenes.camera), 'input_size': list(input_size),
+            'crop_size': CROP_SIZE,
             'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
-    render_shards(cache_dir, meta, count, SHARD_SIZE, _init_worker,
-                  (scenes, tuple(input_size)), _render, _write_shard, 'scene', workers, progress)
+    render_shards(cache_dir, meta, whole_shards(count, SHARD_SIZE), SHARD_SIZE, _init_worker,
+                  (scenes, tuple(input_size)), _render, write_scene_shard, 'scene', workers,
+                  progress)
+
+
+def whole_shards(count: int, shard_size: int) -> int:
+    """Round ``count`` up to whole shards: a render cache grows, and resumes, by shards."""
+    return -(-count // shard_size) * shard_size
 
 
 def render_shards(cache_dir: Path, meta: Mapping[str, Any], count: int, shard_size: int,
                   init_worker: Callable[..., None], init_args: tuple[Any, ...],
-                  render: Callable[[int], Any], write_shard: Callable[[Path, list[Any]], None],
-                  unit: str, workers: int, progress: bool) -> None:
+                  render: Callable[[Any], Any], write_shard: Callable[[Path, list[Any]], None],
+                  unit: str, workers: int, progress: bool,
+                  items: Sequence[Any] | None = None, desc: str = 'rendering') -> None:
     """
-    Render ``count`` items into shard files of ``cache_dir`` in worker processes (resumable).
+    Make ``count`` items into shard files of ``cache_dir`` in worker processes (resumable).
 
     ``meta`` is written to ``meta.json`` (an existing, different one is an error); each
-    worker runs ``init_worker(*init_args)``, then ``render(index)`` per item; the results of
-    a shard are written by ``write_shard(path, results)`` (atomically). Shards already on
-    disk are skipped, so an interrupted build resumes.
+    worker runs ``init_worker(*init_args)``, then ``render(index)`` per item index, or
+    ``render(items[index])`` when ``items`` is given; the results of a shard (``shard_size``
+    items, the last one possibly fewer) are written by ``write_shard(path, results)``
+    (atomically). Shards already on disk are skipped, so an interrupted build resumes.
     """
     meta_path = cache_dir / 'meta.json'
     if meta_path.is_file() and json.loads(meta_path.read_text()) != meta:
@@ -135,15 +174,21 @@ def render_shards(cache_dir: Path, meta: Mapping[str, Any], count: int, shard_si
     # Each worker makes its own GL context lazily.
     context = multiprocessing.get_context('spawn')
     with context.Pool(workers, init_worker, init_args) as pool, \
-            tqdm(total=len(todo) * shard_size, desc='rendering', unit=unit,
-                 disable=not progress) as bar:
+            tqdm(total=sum(min(shard_size, count - s * shard_size) for s in todo), desc=desc,
+                 unit=unit, disable=not progress) as bar:
         for shard in todo:
-            indices = range(shard * shard_size, (shard + 1) * shard_size)
+            indices = range(shard * shard_size, min((shard + 1) * shard_size, count))
+            tasks = indices if items is None else [items[i] for i in indices]
             results = []
-            for result in pool.imap(render, indices, chunksize=4):
+            for result in pool.imap(render, tasks, chunksize=4):
                 results.append(result)
                 bar.update()
             write_shard(_shard_path(cache_dir, shard), results)
+
+
+def camera_meta(camera: CameraIntrinsics) -> list[float]:
+    """Return the ``camera`` field of a cache's meta.json: [fx, fy, cx, cy, width, height]."""
+    return [camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]
 
 
 def photo_count(scenes: SyntheticScenes | CropScenes) -> int:
@@ -155,10 +200,17 @@ def _shard_path(cache_dir, shard):
     return Path(cache_dir) / f'shard_{shard:05d}.npz'
 
 
-def _write_shard(path, results):
+def write_scene_shard(path: Path, results: Sequence[tuple[np.ndarray, Any]]) -> None:
+    """
+    Write the ``scene_entry`` results of one shard's scenes to ``path`` (atomically).
+
+    A shard whose scenes have no instance at all (imported images can) gets empty instance
+    arrays of the usual shapes and types.
+    """
     images = np.stack([small for small, _ in results])
     arrays = {'images': images}
-    records = [(k, r) for k, (_, r) in enumerate(results) if r is not None]
+    records = [(k, r) for k, (_, r) in enumerate(results) if r is not None] or \
+        [(0, _no_instances())]
     for key in ('object', 'box_uv', 'visib', 'rotation', 'translation', 'crop', 'square'):
         arrays[key] = np.concatenate([r[key] for _, r in records])
     arrays['scene'] = np.concatenate([np.full(len(r['object']), k) for k, r in records])
@@ -166,6 +218,14 @@ def _write_shard(path, results):
         arrays[key] = arrays[key].astype(np.float32)
     with atomic_output(path) as tmp, open(tmp, 'wb') as stream:
         np.savez(stream, **arrays)
+
+
+def _no_instances():
+    """Instance records of a scene without instances (see ``scene_entry``)."""
+    return {'object': np.zeros(0, dtype=int), 'box_uv': np.zeros((0, 4)), 'visib': np.zeros(0),
+            'rotation': np.zeros((0, 3, 3)), 'translation': np.zeros((0, 3)),
+            'crop': np.zeros((0, CROP_SIZE, CROP_SIZE, 3), dtype=np.uint8),
+            'square': np.zeros((0, 4))}
 
 
 class TrainingCache:

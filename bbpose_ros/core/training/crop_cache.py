@@ -36,10 +36,11 @@ import numpy as np
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.training.cache import photo_count, render_shards
+from bbpose_ros.core.training.cache import camera_meta, photo_count, render_shards, \
+    whole_shards
 
 if TYPE_CHECKING:
-    from bbpose_ros.core.synth.crop_scenes import CropScenes
+    from bbpose_ros.core.synth.crop_scenes import CropSample, CropScenes
 
 SHARD_SIZE = 2000
 
@@ -54,7 +55,9 @@ def _render(index):
     return _WORKER['scenes'].sample(index)
 
 
-def _write_shard(names, path, samples):
+def write_crop_shard(names: Sequence[str], path: Path,
+                     samples: Sequence[CropSample]) -> None:
+    """Write one shard's crops (``CropSample``-like, ``names`` = the objects) to ``path``."""
     arrays = {
         'crop': np.stack([s.image_rgb for s in samples]),
         'object': np.array([names.index(s.object_name) for s in samples]),
@@ -84,17 +87,16 @@ def build_crop_cache(scenes: CropScenes, cache_dir: Path | str, count: int, work
     """
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
-    camera = scenes.camera
     meta = {'kind': 'qnet_crops', 'objects': scenes.target_names, 'seed': scenes.seed,
-            'camera': [camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-                       camera.height],
-            'crop_size': scenes.crop_size, 'context': scenes.context,
+            'camera': camera_meta(scenes.camera), 'crop_size': scenes.crop_size,
+            'context': scenes.context,
             'box_sigma': scenes.box_sigma, 'min_visib': scenes.min_visib,
             'shard_size': shard_size,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
-    render_shards(cache_dir, meta, count, shard_size, _init_worker, (scenes,), _render,
-                  partial(_write_shard, scenes.target_names), 'crop', workers, progress)
+    render_shards(cache_dir, meta, whole_shards(count, shard_size), shard_size, _init_worker,
+                  (scenes,), _render,
+                  partial(write_crop_shard, scenes.target_names), 'crop', workers, progress)
 
 
 def _read_meta(cache_dir):

@@ -40,6 +40,7 @@ from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import photometric
 from bbpose_ros.core.training.cache import TrainingCache
+from bbpose_ros.core.training.device import TrainingDevice
 
 
 @dataclass
@@ -160,27 +161,31 @@ def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pos_loss.sum() + neg_loss.sum()) / positive.sum().clamp_min(1)
 
 
-def detector_loss(network: CenterBoxNet, batch: Sequence[torch.Tensor],
+def detector_loss(outputs: Sequence[torch.Tensor], targets: Sequence[torch.Tensor],
                   box_weight: float) -> torch.Tensor:
-    """Heatmap focal loss + weighted L1 on the log box sides, for one batch."""
-    images, heat, sides, weight = batch
-    heat_logits, side_pred = network(images)
+    """
+    Heatmap focal loss + weighted L1 on the log box sides, for one batch.
+
+    ``outputs`` are the network's (heatmap logits, log sides), ``targets`` the batch's
+    (heatmap, sides, weight) (``DetectorBatches.make`` without the images).
+    """
+    heat_logits, side_pred = outputs
+    heat, sides, weight = targets
     l1 = (F.l1_loss(side_pred, sides, reduction='none').sum(dim=1) * weight).sum()
     return focal_loss(heat_logits, heat) + box_weight * l1 / weight.sum().clamp_min(1)
 
 
 def detector_step(network: CenterBoxNet, optimizer: torch.optim.Optimizer,
-                  batches: DetectorBatches) -> float:
-    """One optimisation step; returns the batch loss."""
-    loss = detector_loss(network, batches.train_batch(), batches.settings.box_weight)
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    return float(loss.detach())
+                  batches: DetectorBatches, device: TrainingDevice) -> float:
+    """One optimisation step on ``device``; returns the batch loss."""
+    images, *targets = device.put(*batches.train_batch())
+    loss = detector_loss(device.forward(network, images), targets, batches.settings.box_weight)
+    return device.minimise(optimizer, loss)
 
 
 def detector_validation(network: CenterBoxNet, batches: DetectorBatches,
-                        score_threshold: float = 0.3, max_scenes: int = 200) -> dict[str, float]:
+                        device: TrainingDevice, score_threshold: float = 0.3,
+                        max_scenes: int = 200) -> dict[str, float]:
     """
     Score held-out scenes: loss, recall at IoU 0.5, and side errors of the matched boxes.
 
@@ -194,9 +199,10 @@ def detector_validation(network: CenterBoxNet, batches: DetectorBatches,
     found, total, errors, losses = 0, 0, [], []
     with torch.inference_mode():
         for chunk in np.array_split(scenes, max(1, len(scenes) // 16)):
-            batch = batches.make(chunk, 0.0)
-            losses.append(float(detector_loss(network, batch, batches.settings.box_weight)))
-            heat, sides = network(batch[0])
+            images, *targets = device.put(*batches.make(chunk, 0.0))
+            outputs = network(images)
+            losses.append(float(detector_loss(outputs, targets, batches.settings.box_weight)))
+            heat, sides = (x.cpu() for x in outputs)
             for k, scene in enumerate(chunk):
                 ids = batches.by_scene[scene]
                 classes, _, boxes = decode(heat[k], sides[k], batches.config.stride,

@@ -19,7 +19,9 @@ Both networks start from the same weights (the layer has none), see the same bat
 same order and use the same optimizer; only the layer differs. Without it the Dot Product
 Loss on the raw output is unbounded below (scaling the output up lowers it), so the plot also
 shows, for that network, the loss of its output normalised afterwards: the figure that says
-how well it actually points at the ground truth.
+how well it actually points at the ground truth. On a GPU both train in float32, not mixed
+precision: the unnormalised output's overflow is part of what the figure shows, and
+float16 would overflow far sooner.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import torch
 
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import QNormalization, symmetric_dot_product_loss
+from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import plot_curves
 from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
 
@@ -50,23 +53,26 @@ def q_normalization_experiment(cache: TrainingCache | CropCache,
                                models: Mapping[str, ObjectModel], config: QNetConfig,
                                settings: QNetTrainSettings, run_dir: Path | str, steps: int,
                                seed: int = 0, threads: int | None = None,
-                               every: int = 25) -> dict[str, Any]:
+                               every: int = 25,
+                               device: str | torch.device = 'cpu') -> dict[str, Any]:
     """
     Train both variants for ``steps`` steps and plot their losses into ``run_dir/fig3.png``.
 
     Returns a summary dict (also written to ``run_dir/fig3.json``): the mean loss of the last
     ``every`` steps of each curve (None once it is not finite), the wall time, and the first
     step where the unnormalised network's loss went negative or non-finite (the plot's y
-    range is cut to the meaningful 0..0.5 band).
+    range is cut to the meaningful 0..0.5 band). ``device``: 'cpu' or 'cuda' (float32).
     """
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
+    device = TrainingDevice(device, mixed_precision=False)
     with_norm = QNet(dataclasses.replace(config, q_normalization=True))
     without = QNet(dataclasses.replace(config, q_normalization=False))
     without.load_state_dict(copy.deepcopy(with_norm.state_dict()))
+    with_norm, without = with_norm.to(device.device), without.to(device.device)
     variants = {'with q-normalization': with_norm, 'without q-normalization': without}
     optimizers = {name: torch.optim.SGD(net.parameters(), settings.lr, momentum=0.9)
                   for name, net in variants.items()}
@@ -77,14 +83,11 @@ def q_normalization_experiment(cache: TrainingCache | CropCache,
     start = time.monotonic()
     for _ in range(steps):
         for name, net in variants.items():
-            images, index, candidates, valid = sources[name].train_batch()
+            images, index, candidates, valid = device.put(*sources[name].train_batch())
             net.train()
             output = net(images, index)
             loss = symmetric_dot_product_loss(output, candidates, valid).mean()
-            optimizers[name].zero_grad(set_to_none=True)
-            loss.backward()
-            optimizers[name].step()
-            curves[name].append(float(loss.detach()))
+            curves[name].append(device.minimise(optimizers[name], loss))
             if net is without:
                 normalised = symmetric_dot_product_loss(normalize(output.detach()), candidates,
                                                         valid)

@@ -15,7 +15,8 @@
 """
 The shared training loop: step or time budget, checkpoints and resume, log and loss plot.
 
-A run folder holds ``checkpoint.pt`` (network, optimizer, step),
+A run folder holds ``checkpoint.pt`` (network, optimizer, step, loss scale; CPU tensors, so
+it resumes on either device),
 ``log.csv`` (step, seconds, loss, lr and validation figures), ``train.log`` (text) and
 ``loss.png``. Resuming continues the step count, the learning-rate schedule and the log.
 """
@@ -34,6 +35,7 @@ from tqdm import tqdm
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.training.device import cpu_copy, TrainingDevice
 
 
 class RunLog:
@@ -104,7 +106,8 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
              train_step: Callable[[int], float], steps: int, seconds: float | None,
              base_lr: float, validate: Callable[[], Mapping[str, float]] | None = None,
              every: int = 500, on_checkpoint: Callable[[int], None] | None = None,
-             progress: bool = True, extra_state: dict[str, Any] | None = None) -> int:
+             progress: bool = True, extra_state: dict[str, Any] | None = None,
+             device: TrainingDevice | None = None) -> int:
     """
     Train until ``steps`` total steps or ``seconds`` of this call, whichever is first.
 
@@ -121,6 +124,7 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
         on_checkpoint: optional callable(step) after each checkpoint (e.g. export weights).
         progress: show a tqdm bar.
         extra_state: dict saved in and restored from the checkpoint (updated in place).
+        device: the TrainingDevice ``train_step`` uses; its loss scale is checkpointed.
 
     Returns:
         The number of steps done in total.
@@ -141,6 +145,8 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
         for group, scale in zip(optimizer.param_groups, scales):
             group['lr_scale'] = scale       # this call's settings, not the checkpoint's
         step = int(state['step'])
+        if device is not None:
+            device.load_state_dict(state.get('grad_scaler', {}))
         if extra_state is not None:
             extra_state.update(state.get('extra', {}))
         log.text(f'resumed from {checkpoint} at step {step}')
@@ -157,7 +163,7 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
         bar.update()
         bar.set_postfix(loss=f'{losses[-1]:.4f}')
         if step % every == 0 or step == steps:
-            _checkpoint(checkpoint, network, optimizer, step, extra_state)
+            _checkpoint(checkpoint, network, optimizer, step, extra_state, device)
             figures = validate() if validate else {}
             mean = sum(losses[-every:]) / len(losses[-every:])
             log.row({'step': step, 'seconds': round(time.monotonic() - start, 1),
@@ -169,16 +175,18 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
                 on_checkpoint(step)
     bar.close()
     if step % every:
-        _checkpoint(checkpoint, network, optimizer, step, extra_state)
+        _checkpoint(checkpoint, network, optimizer, step, extra_state, device)
         if on_checkpoint:
             on_checkpoint(step)
     return step
 
 
-def _checkpoint(path, network, optimizer, step, extra_state):
+def _checkpoint(path, network, optimizer, step, extra_state, device):
+    state = {'network': network.state_dict(), 'optimizer': optimizer.state_dict(),
+             'step': step, 'extra': extra_state or {},
+             'grad_scaler': device.state_dict() if device is not None else {}}
     with atomic_output(path) as tmp:
-        torch.save({'network': network.state_dict(), 'optimizer': optimizer.state_dict(),
-                    'step': step, 'extra': extra_state or {}}, tmp)
+        torch.save(cpu_copy(state), tmp)
 
 
 def _plot_log(log):

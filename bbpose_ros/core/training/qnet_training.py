@@ -47,6 +47,7 @@ from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.device import TrainingDevice
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -155,34 +156,37 @@ def symmetry_rotations(models: Sequence[ObjectModel]) -> tuple[np.ndarray, np.nd
     return rotations, valid
 
 
-def qnet_loss(network: QNet, images: torch.Tensor, index: torch.Tensor,
-              candidates: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """Per-crop training loss (B,): the symmetric Dot Product Loss, or winner-takes-all."""
-    if network.config.hypotheses == 1:
-        return symmetric_dot_product_loss(network(images, index), candidates, valid)
-    return multi_hypothesis_loss(*network.hypotheses(images, index), candidates, valid)
+def qnet_loss(outputs: tuple[torch.Tensor, torch.Tensor], candidates: torch.Tensor,
+              valid: torch.Tensor) -> torch.Tensor:
+    """
+    Per-crop training loss (B,): the symmetric Dot Product Loss, or winner-takes-all.
+
+    ``outputs`` are ``QNet.hypotheses``' (quaternions (B, H, 4), scores (B, H)).
+    """
+    quats, scores = outputs
+    if quats.shape[1] == 1:
+        return symmetric_dot_product_loss(quats[:, 0], candidates, valid)
+    return multi_hypothesis_loss(quats, scores, candidates, valid)
 
 
-def qnet_step(network: QNet, optimizer: torch.optim.Optimizer, batches: QNetBatches) -> float:
-    """One optimisation step; returns the batch's mean loss."""
-    images, index, candidates, valid = batches.train_batch()
-    loss = qnet_loss(network, images, index, candidates, valid).mean()
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    return float(loss.detach())
+def qnet_step(network: QNet, optimizer: torch.optim.Optimizer, batches: QNetBatches,
+              device: TrainingDevice) -> float:
+    """One optimisation step on ``device``; returns the batch's mean loss."""
+    images, index, candidates, valid = device.put(*batches.train_batch())
+    outputs = device.forward(network.hypotheses, images, index)
+    return device.minimise(optimizer, qnet_loss(outputs, candidates, valid).mean())
 
 
-def qnet_validation(network: QNet, batches: QNetBatches, count: int = 512,
-                    seed: int = 12345) -> dict[str, float]:
+def qnet_validation(network: QNet, batches: QNetBatches, device: TrainingDevice,
+                    count: int = 512, seed: int = 12345) -> dict[str, float]:
     """Score held-out scenes: loss, median rotation error (deg), share under 15 deg."""
     rng = np.random.default_rng(seed)
     ids = rng.choice(batches.val_ids, min(count, len(batches.val_ids)), replace=False)
     network.eval()
     with torch.inference_mode():
-        images, index, candidates, valid = batches.make(ids, rng, batches.settings.box_sigma,
-                                                        0.0)
-        loss = symmetric_dot_product_loss(network(images, index), candidates, valid)
+        images, index, candidates, valid = device.put(
+            *batches.make(ids, rng, batches.settings.box_sigma, 0.0))
+        loss = symmetric_dot_product_loss(network(images, index), candidates, valid).cpu()
     # Dot Product Loss L = (1 - cos(theta / 2)) / 2 for a rotation error theta.
     angles = np.degrees(2 * np.arccos(np.clip(np.abs(1 - 2 * loss.numpy()), 0, 1)))
     return {'val_loss': float(loss.mean()), 'val_median_deg': float(np.median(angles)),

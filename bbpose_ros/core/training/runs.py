@@ -41,6 +41,7 @@ from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
                                                         DetectorBatches, DetectorTrainSettings)
+from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (qnet_step, qnet_validation, QNetBatches,
                                                     QNetTrainSettings)
@@ -64,13 +65,15 @@ def git_commit() -> str:
         return 'unknown'
 
 
-def _prepare(run_dir, seed, threads):
+def _prepare(run_dir, seed, threads, device):
+    """Seed, set the CPU threads, log the command; return the run's TrainingDevice."""
     torch.manual_seed(seed)
     if threads:
         torch.set_num_threads(threads)
-    log = RunLog(run_dir)
-    log.text(f'command: {" ".join(sys.argv)} (torch threads {torch.get_num_threads()})')
-    return log
+    device = TrainingDevice(device)
+    RunLog(run_dir).text(f'command: {" ".join(sys.argv)} (device {device}, torch threads '
+                         f'{torch.get_num_threads()})')
+    return device
 
 
 def _exporter(run_dir, network, kind, training, export, validation, base=None):
@@ -107,32 +110,36 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
                config: QNetConfig, settings: QNetTrainSettings, run_dir: Path | str,
                steps: int, seconds: float | None = None, seed: int = 0,
                threads: int | None = None, export: Path | str | None = None, every: int = 500,
-               progress: bool = True, real_crops: RealCrops | None = None) -> QNet:
+               progress: bool = True, real_crops: RealCrops | None = None,
+               device: str | torch.device = 'cpu') -> QNet:
     """
     Train (or resume) a Q-Net on a TrainingCache or CropCache; returns the network.
 
     ``config`` is a QNetConfig, ``settings`` a QNetTrainSettings; budgets as in
     ``loop.run_loop``. The weight file is written to ``run_dir/qnet.pt`` (and ``export``).
-    ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation.
+    ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation, measured
+    on the CPU. ``device``: 'cpu' or 'cuda' (with mixed precision, see ``device.py``).
     """
-    _prepare(run_dir, seed, threads)
+    device = _prepare(run_dir, seed, threads, device)
     network = QNet(config)
     load_imagenet_trunks(network)
-    network = network.to(memory_format=torch.channels_last)
+    network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
     batches = QNetBatches(cache, config, models, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
+                'device': device.device.type,
                 'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
-    run_loop(run_dir, network, optimizer, lambda step: qnet_step(network, optimizer, batches),
-             steps, seconds, settings.lr,
-             validate=_validated(lambda: _qnet_figures(network, batches, real_crops),
+    run_loop(run_dir, network, optimizer,
+             lambda step: qnet_step(network, optimizer, batches, device), steps, seconds,
+             settings.lr,
+             validate=_validated(lambda: _qnet_figures(network, batches, real_crops, device),
                                  validation),
              every=every, on_checkpoint=_exporter(run_dir, network, 'qnet', training, export,
                                                   validation),
-             progress=progress)
+             progress=progress, device=device)
     return network
 
 
@@ -155,8 +162,8 @@ def parameter_groups(network, trunk_lr_scale):
     return [{'params': rest}, {'params': trunk, 'lr_scale': trunk_lr_scale}]
 
 
-def _qnet_figures(network, batches, real_crops):
-    figures = qnet_validation(network, batches)
+def _qnet_figures(network, batches, real_crops, device):
+    figures = qnet_validation(network, batches, device)
     if real_crops is not None:
         figures.update(real_crops.figures(network))
     return figures
@@ -166,31 +173,32 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
                    settings: DetectorTrainSettings, run_dir: Path | str, steps: int,
                    seconds: float | None = None, seed: int = 0, threads: int | None = None,
                    export: Path | str | None = None, every: int = 500,
-                   progress: bool = True) -> CenterBoxNet:
+                   progress: bool = True, device: str | torch.device = 'cpu') -> CenterBoxNet:
     """
     Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise.
 
     A 'lite0' backbone starts from ImageNet and learns at ``settings.trunk_lr_scale`` times
     the head's rate (0: frozen).
     """
-    _prepare(run_dir, seed, threads)
+    device = _prepare(run_dir, seed, threads, device)
     network = CenterBoxNet(config)
     load_imagenet_trunks(network)
-    network = network.to(memory_format=torch.channels_last)
+    network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
     batches = DetectorBatches(cache, config, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
-                'cache_scenes': int(len(cache.images))}
+                'device': device.device.type, 'cache_scenes': int(len(cache.images))}
     run_loop(run_dir, network, optimizer,
-             lambda step: detector_step(network, optimizer, batches), steps, seconds,
+             lambda step: detector_step(network, optimizer, batches, device), steps, seconds,
              settings.lr,
-             validate=_validated(lambda: detector_validation(network, batches), validation),
+             validate=_validated(lambda: detector_validation(network, batches, device),
+                                 validation),
              every=every, on_checkpoint=_exporter(run_dir, network, 'detector', training,
                                                   export, validation),
-             progress=progress)
+             progress=progress, device=device)
     return network
 
 
@@ -216,38 +224,41 @@ def train_verifier(cache: TrainingCache, cascade: CenterBoxNet,
                    settings: VerifierTrainSettings, run_dir: Path | str, steps: int,
                    seconds: float | None = None, seed: int = 0, threads: int | None = None,
                    export: Path | str | None = None, every: int = 500, progress: bool = True,
-                   real_frames: RealDetections | None = None) -> CenterBoxNet:
+                   real_frames: RealDetections | None = None,
+                   device: str | torch.device = 'cpu') -> CenterBoxNet:
     """
     Train (or resume) the second stage of ``cascade`` (``with_verifier``) on a TrainingCache.
 
     The first stage stays as it is. ``settings`` is a VerifierTrainSettings; budgets as in
     ``loop.run_loop``; ``real_frames`` (a ``RealDetections``) adds the real recall to every
     validation. The weight file, both stages, is ``run_dir/detector.pt`` (and ``export``).
+    ``device`` as in ``train_qnet``.
     """
-    log = _prepare(run_dir, seed, threads)
-    candidates = CandidateCrops(cascade, cache, settings, seed, progress)
-    log.text(f'{len(candidates.labels)} candidate crops from {candidates.scenes} scenes, '
-             f'{int((candidates.labels > 0).sum())} of them on an object')
-    verifier = cascade.verifier.to(memory_format=torch.channels_last)
+    device = _prepare(run_dir, seed, threads, device)
+    cascade = cascade.to(device.device, memory_format=torch.channels_last)
+    candidates = CandidateCrops(cascade, cache, settings, seed, device, progress)
+    RunLog(run_dir).text(f'{len(candidates.labels)} candidate crops from {candidates.scenes} '
+                         f'scenes, {int((candidates.labels > 0).sum())} of them on an object')
+    verifier = cascade.verifier
     optimizer = torch.optim.AdamW(verifier.parameters(), settings.lr,
                                   weight_decay=settings.weight_decay)
     batches = VerifierBatches(candidates, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
-                'cache_scenes': int(len(cache.images)),
+                'device': device.device.type, 'cache_scenes': int(len(cache.images)),
                 'candidate_crops': int(len(candidates.labels))}
 
     def figures():
-        result = verifier_validation(verifier, batches)
+        result = verifier_validation(verifier, batches, device)
         if real_frames is not None:
             result.update(real_frames.figures(cascade))
         return result
 
     run_loop(run_dir, verifier, optimizer,
-             lambda step: verifier_step(verifier, optimizer, batches), steps, seconds,
+             lambda step: verifier_step(verifier, optimizer, batches, device), steps, seconds,
              settings.lr, validate=_validated(figures, validation), every=every,
              on_checkpoint=_exporter(run_dir, cascade, 'detector', training, export,
                                      validation, base=cascade.metadata['training']),
-             progress=progress)
+             progress=progress, device=device)
     return cascade

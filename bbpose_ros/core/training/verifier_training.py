@@ -43,6 +43,7 @@ from bbpose_ros.core.nets.verifier import CandidateVerifier
 from bbpose_ros.core.training.augment import photometric
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import detector_classes, to_input_pixels
+from bbpose_ros.core.training.device import TrainingDevice
 
 
 @dataclass
@@ -78,8 +79,8 @@ class CandidateCrops:
     """
 
     def __init__(self, network: CenterBoxNet, cache: TrainingCache,
-                 settings: VerifierTrainSettings, seed: int, progress: bool = True,
-                 chunk: int = 64) -> None:
+                 settings: VerifierTrainSettings, seed: int, device: TrainingDevice,
+                 progress: bool = True, chunk: int = 64) -> None:
         config = network.config
         class_of = detector_classes(config, cache)
         rng = np.random.default_rng(seed)
@@ -89,7 +90,8 @@ class CandidateCrops:
         for start in tqdm(starts, desc='mining candidates', unit='chunk', disable=not progress):
             images = cache.images[start:start + chunk]
             with torch.inference_mode():
-                heat, sides = network(images_to_input(torch.from_numpy(images)))
+                outputs = network(*device.put(images_to_input(torch.from_numpy(images))))
+            heat, sides = (x.cpu() for x in outputs)
             for k, image in enumerate(images):
                 scene = start + k
                 ids = np.flatnonzero((cache.scene == scene) & (cache.visib >= settings.min_visib)
@@ -162,11 +164,16 @@ class VerifierBatches:
                 torch.from_numpy(self.candidates.corrections[ids]))
 
 
-def verifier_loss(verifier: CandidateVerifier, batch: Sequence[torch.Tensor],
+def verifier_loss(outputs: Sequence[torch.Tensor], targets: Sequence[torch.Tensor],
                   settings: VerifierTrainSettings) -> torch.Tensor:
-    """Cross-entropy + ``box_weight`` x smooth L1 of the positives' side corrections."""
-    crops, labels, corrections = batch
-    logits, predicted = verifier.outputs(crops)
+    """
+    Cross-entropy + ``box_weight`` x smooth L1 of the positives' side corrections.
+
+    ``outputs`` are ``CandidateVerifier.outputs``' (class logits, corrections), ``targets``
+    the batch's (labels, corrections).
+    """
+    logits, predicted = outputs
+    labels, corrections = targets
     positive = labels > 0
     box = F.smooth_l1_loss(predicted[positive], corrections[positive], beta=0.05,
                            reduction='sum') / max(int(positive.sum()), 1)
@@ -175,17 +182,15 @@ def verifier_loss(verifier: CandidateVerifier, batch: Sequence[torch.Tensor],
 
 
 def verifier_step(verifier: CandidateVerifier, optimizer: torch.optim.Optimizer,
-                  batches: VerifierBatches) -> float:
-    """One optimisation step; returns the batch loss."""
-    loss = verifier_loss(verifier, batches.train_batch(), batches.settings)
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    return float(loss.detach())
+                  batches: VerifierBatches, device: TrainingDevice) -> float:
+    """One optimisation step on ``device``; returns the batch loss."""
+    crops, *targets = device.put(*batches.train_batch())
+    loss = verifier_loss(device.forward(verifier.outputs, crops), targets, batches.settings)
+    return device.minimise(optimizer, loss)
 
 
 def verifier_validation(verifier: CandidateVerifier, batches: VerifierBatches,
-                        max_crops: int = 20000) -> dict[str, float]:
+                        device: TrainingDevice, max_crops: int = 20000) -> dict[str, float]:
     """
     Held-out scenes: loss, accuracy, positives given their class, side error of the positives.
 
@@ -197,14 +202,16 @@ def verifier_validation(verifier: CandidateVerifier, batches: VerifierBatches,
     losses, predicted, labels, side_errors, before = [], [], [], [], []
     with torch.inference_mode():
         for chunk in np.array_split(ids, max(1, len(ids) // 1024)):
-            batch = batches.batch(chunk)
-            losses.append(float(verifier_loss(verifier, batch, batches.settings)) * len(chunk))
-            logits, corrections = verifier.outputs(batch[0])
-            positive = batch[1] > 0
+            crops, *targets = device.put(*batches.batch(chunk))
+            outputs = verifier.outputs(crops)
+            losses.append(float(verifier_loss(outputs, targets, batches.settings)) * len(chunk))
+            logits, corrections = (x.cpu() for x in outputs)
+            truth_labels, truth = (x.cpu() for x in targets)
+            positive = truth_labels > 0
             predicted.append(logits.argmax(dim=1).numpy())
-            labels.append(batch[1].numpy())
-            side_errors.append((corrections - batch[2])[positive].abs().numpy())
-            before.append(batch[2][positive].abs().numpy())
+            labels.append(truth_labels.numpy())
+            side_errors.append((corrections - truth)[positive].abs().numpy())
+            before.append(truth[positive].abs().numpy())
     predicted, labels = np.concatenate(predicted), np.concatenate(labels)
     positive = labels > 0
     return {'val_loss': sum(losses) / max(len(labels), 1),
