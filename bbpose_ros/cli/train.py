@@ -135,6 +135,10 @@ def _detector_options(parser):
     parser.add_argument('--train-crop', type=_int_tuple, default=None, metavar='W,H',
                         help='training window in input pixels, multiples of 16 '
                              '(default 192,160)')
+    parser.add_argument('--export-input-size', type=_int_tuple, default=None, metavar='W,H',
+                        help='input size recorded in the --export copy, multiples of 16: the '
+                             'detector is fully convolutional and may run at another size '
+                             "than the cache's (default: the cache's)")
 
 
 def _backbone_options(parser):
@@ -375,9 +379,15 @@ def run_detector(args):
                                for side, full in zip(window, cache.input_size)):
         raise InputError(f'--train-crop must be W,H in multiples of 16 within the cache input '
                          f'size {tuple(cache.input_size)}, got {tuple(window)}')
+    export_size = args.export_input_size
+    if export_size is not None and (args.export is None or any(
+            side <= 0 or side % 16 for side in export_size)):
+        raise InputError('--export-input-size needs --export and W,H in multiples of 16, got '
+                         f'{export_size}')
     train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
-                   args.every, device=device)
+                   args.every, device=device,
+                   export_input_size=None if export_size is None else tuple(export_size))
     return 0
 
 

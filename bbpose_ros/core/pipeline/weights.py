@@ -69,11 +69,18 @@ def metadata_for(kind: str, config: QNetConfig | DetectorConfig,
 
 
 def save_weights(path: Path | str, network: QNet | CenterBoxNet, kind: str,
-                 training: Mapping[str, Any]) -> None:
-    """Write ``network`` (QNet or CenterBoxNet) with its metadata, atomically."""
+                 training: Mapping[str, Any],
+                 config: QNetConfig | DetectorConfig | None = None) -> None:
+    """
+    Write ``network`` (QNet or CenterBoxNet) with its metadata, atomically.
+
+    ``config`` is recorded instead of ``network.config`` when given: a fully convolutional
+    detector may be run at another input size than the one it trained at.
+    """
     path = Path(path)
     state = {k: v.detach().cpu().clone() for k, v in network.state_dict().items()}
-    payload = {'metadata': metadata_for(kind, network.config, training), 'state_dict': state}
+    payload = {'metadata': metadata_for(kind, config or network.config, training),
+               'state_dict': state}
     with atomic_output(path) as tmp:
         torch.save(payload, tmp)
 

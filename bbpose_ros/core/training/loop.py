@@ -121,7 +121,8 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
         base_lr: peak learning rate.
         validate: optional callable() -> dict of validation figures, run at checkpoints.
         every: steps between checkpoints.
-        on_checkpoint: optional callable(step) after each checkpoint (e.g. export weights).
+        on_checkpoint: optional callable(step) after each checkpoint (e.g. export weights),
+            and once when a finished run is called again.
         progress: show a tqdm bar.
         extra_state: dict saved in and restored from the checkpoint (updated in place).
         device: the TrainingDevice ``train_step`` uses; its loss scale is checkpointed.
@@ -174,7 +175,12 @@ def run_loop(run_dir: Path | str, network: nn.Module, optimizer: torch.optim.Opt
             if on_checkpoint:
                 on_checkpoint(step)
     bar.close()
-    if step % every:
+    if not losses and on_checkpoint:
+        # A finished run called again re-exports its weights (e.g. to a new --export).
+        if validate:
+            validate()
+        on_checkpoint(step)
+    elif step % every:
         _checkpoint(checkpoint, network, optimizer, step, extra_state, device)
         if on_checkpoint:
             on_checkpoint(step)

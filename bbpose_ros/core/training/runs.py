@@ -76,13 +76,15 @@ def _prepare(run_dir, seed, threads, device):
     return device
 
 
-def _exporter(run_dir, network, kind, training, export, validation, base=None):
+def _exporter(run_dir, network, kind, training, export, validation, base=None,
+              export_input_size=None):
     """
     Return a checkpoint hook that writes the weight file (and its copy).
 
     The file's training record is ``training`` with the step and latest ``validation``; with
     a ``base`` record (the first stage's, for a second stage), ``base`` with that record as
-    its ``verifier`` entry.
+    its ``verifier`` entry. With ``export_input_size`` (a detector's (width, height)) the
+    copy records that input size instead of the training one.
     """
     def export_weights(step):
         record = dict(training, steps=step, validation=validation)
@@ -90,7 +92,10 @@ def _exporter(run_dir, network, kind, training, export, validation, base=None):
             record = dict(base, verifier=record)
         path = Path(run_dir) / f'{kind}.pt'
         save_weights(path, network, kind, record)
-        if export:
+        if export and export_input_size:
+            save_weights(export, network, kind, record,
+                         replace(network.config, input_size=tuple(export_input_size)))
+        elif export:
             with atomic_output(export) as tmp:
                 shutil.copyfile(path, tmp)
     return export_weights
@@ -173,12 +178,14 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
                    settings: DetectorTrainSettings, run_dir: Path | str, steps: int,
                    seconds: float | None = None, seed: int = 0, threads: int | None = None,
                    export: Path | str | None = None, every: int = 500,
+                   export_input_size: tuple[int, int] | None = None,
                    progress: bool = True, device: str | torch.device = 'cpu') -> CenterBoxNet:
     """
     Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise.
 
     A 'lite0' backbone starts from ImageNet and learns at ``settings.trunk_lr_scale`` times
-    the head's rate (0: frozen).
+    the head's rate (0: frozen). ``export_input_size``: (width, height) the ``export`` copy
+    is run at (multiples of 16), when not the cache's.
     """
     device = _prepare(run_dir, seed, threads, device)
     network = CenterBoxNet(config)
@@ -197,7 +204,8 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
              validate=_validated(lambda: detector_validation(network, batches, device),
                                  validation),
              every=every, on_checkpoint=_exporter(run_dir, network, 'detector', training,
-                                                  export, validation),
+                                                  export, validation,
+                                                  export_input_size=export_input_size),
              progress=progress, device=device)
     return network
 
