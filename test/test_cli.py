@@ -31,11 +31,32 @@ def bbpose(*args, cwd=None):
                           env={**os.environ, 'PYTHONPATH': str(Path(__file__).parents[1])})
 
 
+def test_eval_refines_perturbed_ground_truth_sweep(lmo_root, tmp_path):
+    out = tmp_path / 'report.json'
+    result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
+                    '--perturb-gt', '10,20', '--perturb-gt', '30,20', '--objects',
+                    'duck,holepuncher', '--max-frames', '12', '--json', out,
+                    '--plots', tmp_path / 'plots')
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    sweep = {level['deg']: level['mean'] for level in report['sweep']}
+    assert sorted(sweep) == [10.0, 30.0] and report['mean'] == sweep[10.0]
+    # Unrefined, a start 10 deg off never passes 5 cm / 5 deg; refined, some do, and a
+    # start 30 deg off ends further from the truth than one 10 deg off.
+    assert sweep[10.0]['cm5deg5'] > 0.05
+    assert sweep[10.0]['re_median_deg'] < sweep[30.0]['re_median_deg']
+    assert 'refinement' in report['timing_ms']
+    assert (tmp_path / 'plots' / 'refinement_basin.png').stat().st_size > 1000
+    assert 'start 30 deg / 20 mm' in result.stdout
+    bad = bbpose('eval', '--dataset', lmo_root, '--boxes', 'detector', '--perturb-gt', '5,5')
+    assert bad.returncode == 2 and '--perturb-gt needs --boxes gt --rotation gt' in bad.stderr
+
+
 def test_eval_with_ground_truth_boxes_and_rotations(lmo_root, tmp_path):
     out = tmp_path / 'report.json'
     result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
-                    '--objects', 'ape,driller', '--max-frames', '10', '--json', out,
-                    '--plots', tmp_path / 'plots')
+                    '--no-refine', '--objects', 'ape,driller', '--max-frames', '10',
+                    '--json', out, '--plots', tmp_path / 'plots')
     assert result.returncode == 0, result.stderr
     assert 'driller' in result.stdout and 'mean' in result.stdout
     for chart in ('recall_curves.png', 'objects.png', 'visibility.png'):
