@@ -128,16 +128,17 @@ def bench_graph(args, frames, values, overrides):
 
 def format_frames(report):
     """Make the stage table of a stage benchmark report."""
-    modes = [report, report['all_objects']] + ([report['tracking']] if 'tracking' in report
-                                                else [])
+    modes = [report, report['all_objects']]
+    if 'tracking' in report:
+        modes.append(report['tracking'])
     lines = [f'{"stage (ms)":26s}{"median":>9s}{"p95":>9s}{"max":>9s}'
              f'{"all: median":>13s}{"p95":>9s}{"max":>9s}'
              + (f'{"tracked: median":>17s}{"p95":>9s}{"max":>9s}' if len(modes) > 2 else '')]
     for stage in STAGES + ('total',):
         cells = [mode['total'] if stage == 'total' else mode['stages'].get(stage)
                  for mode in modes]
-        lines.append(f'{stage:26s}' + ''.join(_cells(c, first=w)
-                                             for c, w in zip(cells, (9, 13, 17))))
+        row = ''.join(_cells(c, first=w) for c, w in zip(cells, (9, 13, 17)))
+        lines.append(f'{stage:26s}{row}')
     lines.append(f'fps {report["fps"]:.1f} (all objects {report["all_objects"]["fps"]:.1f}); '
                  f'objects per frame {report["objects_per_frame"]:.2f} (all objects '
                  f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '

@@ -281,7 +281,7 @@ def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
 
 
 def _time_tracking(pipeline, camera, buffer, from_buffer, build_messages, poses, iterations):
-    """A tracked frame's times: the given poses refined again as tracks (see the module)."""
+    """Time a tracked frame: the given poses refined again as tracks (see the module)."""
     start = time.perf_counter()
     image = from_buffer(buffer)
     converted = time.perf_counter()

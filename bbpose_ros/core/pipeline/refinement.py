@@ -35,7 +35,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
-from bbpose_ros.core.refine.region_refiner import (Refinement, RefinerConfig, refine_poses,
+from bbpose_ros.core.refine.region_refiner import (refine_poses, Refinement, RefinerConfig,
                                                    RegionRefiner)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel

@@ -344,7 +344,7 @@ class _Batch:
                 enough)
 
     def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None):
-        """The correspondence lines of every pose at ``scale`` (see _Lines)."""
+        """Sample the correspondence lines of every pose at ``scale`` (see _Lines)."""
         points, centres, normals, runs_f, runs_b, in_front = self.project(rotation,
                                                                           translation)
         camera = self.camera
