@@ -95,6 +95,11 @@ class PoseTracker:
         self.tracks: dict[str, Track] = {}
         self._since_detection = 0
 
+    @property
+    def models(self) -> dict:
+        """The pipeline's {name: ObjectModel}: a tracker stands in for its pipeline."""
+        return self.pipeline.models
+
     def reset(self) -> None:
         """Forget all tracks (a new camera, a jump back in time)."""
         self.tracks.clear()
