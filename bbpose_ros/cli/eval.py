@@ -74,13 +74,15 @@ def add_parser(subparsers):
 
 
 def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None,
-                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT, refiner=None):
+                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT, refiner=None,
+                   refine_hypotheses=1):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     if boxes == 'gt' and rotation == 'gt':
         return PosePipeline(models, refiner=refiner)
     from bbpose_ros.core.pipeline.estimators import load_pipeline
     return load_pipeline(models, detector_weights, qnet_weights,
-                         box_consistency_weight=box_consistency_weight, refiner=refiner)
+                         box_consistency_weight=box_consistency_weight, refiner=refiner,
+                         refine_hypotheses=refine_hypotheses)
 
 
 class RecordingDetector:
@@ -117,7 +119,7 @@ def run(args):
         raise InputError('--perturb-gt needs --boxes gt --rotation gt')
     pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
                               args.qnet_weights, args.box_consistency_weight,
-                              load_refiner(args, models))
+                              load_refiner(args, models), args.refine_hypotheses)
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
@@ -146,6 +148,7 @@ def run(args):
                         'qnet_weights': _weights_name(args.qnet_weights),
                         'box_consistency_weight': args.box_consistency_weight,
                         'refine': args.refine, 'refine_min_score': args.refine_min_score,
+                        'refine_hypotheses': args.refine_hypotheses,
                         'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
     for level in report.get('sweep', []):

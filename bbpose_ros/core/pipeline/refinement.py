@@ -43,6 +43,10 @@ from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
+# Rotation hypotheses refined per detection by default: each costs one refinement, and the
+# second one still pays in accuracy (docs/refinement.md).
+DEFAULT_REFINE_HYPOTHESES = 2
+
 
 class PoseRefiner:
     """
