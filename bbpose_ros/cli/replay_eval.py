@@ -73,6 +73,9 @@ def add_parser(subparsers):
     parser.add_argument('--answer-timeout', type=float, default=30.0,
                         help='seconds to wait for the answer to each frame '
                              '(default %(default)s)')
+    parser.add_argument('--compare-tracking', action='store_true',
+                        help='replay a second time with the node parameter tracking flipped '
+                             "and report both runs' means and latencies under 'tracking'")
     parser.set_defaults(func=run)
 
 
@@ -128,6 +131,16 @@ def latencies_ms(recording):
     return latencies
 
 
+def recording_report(recording, scores):
+    """Make a replay's report: per-object and mean scores, node and graph timings, frames."""
+    report = summarize_objects(scores)
+    report['timing_ms'] = dict(recording.timings_ms)
+    report['timing_ms'].update(timing_summary(latencies_ms(recording)))
+    report['frames'] = {'sent': len(recording.published_s),
+                        'answered': len(recording.answered_s)}
+    return report
+
+
 def write_plots(folder, frames, recording, models, scores, per_object):
     """Write the recall curves, per-object bars and a few overlay images into ``folder``."""
     plots.recall_curves(scores, folder / 'recall_curves.png')
@@ -141,12 +154,12 @@ def write_plots(folder, frames, recording, models, scores, per_object):
         viz.write_image(folder / f'overlay_{index:04d}.png', image)
 
 
-def record(args, objects, frame_count):
-    """Run the node, replay the bag into it and return the Recording."""
+def record(args, objects, frame_count, overrides):
+    """Run the node with parameter ``overrides``, replay the bag into it; return the Recording."""
     use_large_image_profile()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bbpose_replay_eval')
-    process = NodeProcess(args.params, args.param)
+    process = NodeProcess(args.params, overrides)
     try:
         player = BagPlayer(node, args.bag)
         recorder = Recorder(node, objects)
@@ -171,19 +184,30 @@ def run(args):
     frames = read_bag_frames(args.bag)
     if not frames or any(frame.camera is None for frame in frames):
         raise InputError(f'bag {args.bag} has no frames or a frame without camera_info')
-    recording = record(args, list(models), len(frames))
+    recording = record(args, list(models), len(frames), args.param)
     bag_path = results_bag_path(args.json)
     write_results_bag(bag_path, recording.messages)
     scores = score_recording(frames, recording, models)
-    report = summarize_objects(scores)
-    report['timing_ms'] = dict(recording.timings_ms)
-    report['timing_ms'].update(timing_summary(latencies_ms(recording)))
-    report['frames'] = {'sent': len(recording.published_s),
-                        'answered': len(recording.answered_s)}
+    report = recording_report(recording, scores)
+    if args.compare_tracking:
+        tracking = bool(values['tracking'])
+        flipped = record(args, list(models), len(frames),
+                         list(args.param) + [f'tracking:={str(not tracking).lower()}'])
+        other = recording_report(flipped, score_recording(frames, flipped, models))
+        report['tracking'] = {
+            'on' if run_tracking else 'off': {key: run[key] for key in
+                                              ('mean', 'timing_ms', 'frames')}
+            for run_tracking, run in ((tracking, report), (not tracking, other))}
     report['config'] = {'bag': str(args.bag), 'params': str(args.params),
                         'param_overrides': list(args.param), 'results_bag': str(bag_path)}
     print(format_report(report))
     print(f'frames: {report["frames"]["sent"]} sent, {report["frames"]["answered"]} answered')
+    for mode, run in report.get('tracking', {}).items():
+        mean, answer = run['mean'], run['timing_ms'].get('answer', {})
+        print(f'tracking {mode}: ADD(-S) {mean["add_s_recall"]:.3f}, 5cm5deg '
+              f'{mean["cm5deg5"]:.3f}, answer latency median '
+              f'{answer.get("median_ms", float("nan")):.1f} ms, p95 '
+              f'{answer.get("p95_ms", float("nan")):.1f} ms')
     write_json_atomic(args.json, report)
     print(f'report written to {args.json}, node outputs to {bag_path}')
     if args.plots is not None:
