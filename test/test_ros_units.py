@@ -34,7 +34,8 @@ from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, read_params_file
+from bbpose_ros.ros.params import declare_parameters, parameter_values, read_config
+from bbpose_ros.ros.params import read_params_file
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -171,7 +172,8 @@ def declare(context, **values):
     node = rclpy.create_node('params_under_test', context=context, parameter_overrides=[
         Parameter(name, value=value) for name, value in values.items()])
     try:
-        return declare_parameters(node)
+        declare_parameters(node)
+        return read_config(parameter_values(node))
     finally:
         node.destroy_node()
 

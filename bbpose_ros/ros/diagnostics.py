@@ -54,8 +54,15 @@ class NodeStats:
         with self._lock:
             self._timings.append(dict(timings_ms))
 
-    def status(self, name: str) -> DiagnosticStatus:
-        """Make a DiagnosticStatus, WARN when frames were dropped since the previous one."""
+    def status(self, name: str, state: str = 'active',
+               failure: str | None = None) -> DiagnosticStatus:
+        """
+        Make a DiagnosticStatus of the counters, latencies and the node's lifecycle state.
+
+        WARN when frames were dropped since the previous status; ERROR with the reason when
+        the last lifecycle transition failed (``failure``). ``lifecycle_state`` is one of
+        unconfigured, inactive, active.
+        """
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
             summary = timing_summary(list(self._timings))
@@ -65,7 +72,12 @@ class NodeStats:
             level = DiagnosticStatus.WARN
             message += f', {dropped - self._dropped_reported} dropped since the last report'
         self._dropped_reported = dropped
-        values = [KeyValue(key=f'frames_{key}', value=str(counts[key])) for key in COUNTERS]
+        if state != 'active':
+            message = f'{state}; {message}'
+        if failure is not None:
+            level, message = DiagnosticStatus.ERROR, f'{failure}; {message}'
+        values = [KeyValue(key='lifecycle_state', value=state)]
+        values += [KeyValue(key=f'frames_{key}', value=str(counts[key])) for key in COUNTERS]
         values += [KeyValue(key=f'{stage}{_SUFFIX}{stat}', value=f'{ms:.3f}')
                    for stage, stats in summary.items() for stat, ms in stats.items()]
         return DiagnosticStatus(level=level, name=name, message=message,

@@ -15,6 +15,13 @@
 """
 ``bbpose_node``: Image + CameraInfo in; poses, markers, a debug image and diagnostics out.
 
+A managed (lifecycle) node. ``configure`` checks the parameters and loads the objects and
+the networks (a failure is a failed transition, its reason logged, and the node stays
+unconfigured); ``activate`` creates the publishers, the subscriptions and the worker;
+``deactivate`` stops them; ``cleanup`` frees the pipeline. With ``autostart`` (default)
+the node configures and activates itself at start and exits with code 1 when it cannot.
+``/diagnostics`` is published in every state.
+
 Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8) and
 ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within ``sync_slop``.
 Publications, stamped with the image's header (stamp and frame_id):
@@ -41,7 +48,7 @@ import numpy as np
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
@@ -57,11 +64,14 @@ from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
 from bbpose_ros.ros.params import declare_parameters, NODE_NAME, NodeConfig
+from bbpose_ros.ros.params import parameter_values, read_config
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
 UNPAIRED_TIMEOUT_S = 1.0    # an image waiting longer for its CameraInfo is dropped
 WORKER_JOIN_TIMEOUT_S = 1.0
+SUCCESS = TransitionCallbackReturn.SUCCESS
+FAILURE = TransitionCallbackReturn.FAILURE
 
 
 @dataclass(frozen=True)
@@ -73,66 +83,141 @@ class Frame:
     received_s: float
 
 
-def build_pipeline(config: NodeConfig) -> PosePipeline:
-    """Build the PosePipeline of a NodeConfig: meshes from dataset_dir, learned stages."""
+@dataclass(frozen=True)
+class Estimator:
+    """A pipeline and the MarkerArrayBuilder of its objects: the worker takes both at once."""
+
+    pipeline: PosePipeline
+    markers: conversions.MarkerArrayBuilder
+
+
+def build_estimator(config: NodeConfig) -> Estimator:
+    """Build the Estimator of a NodeConfig: meshes from dataset_dir, learned stages."""
     try:
         models = load_bop_models(config.dataset_dir, list(config.objects))
     except InputError as err:
         raise InputError(f'parameter objects / dataset_dir: loading the objects from '
                          f'{config.dataset_dir}: {err}') from err
     try:
-        return load_pipeline(models, detector_weights=config.detector_weights,
-                             qnet_weights=config.qnet_weights,
-                             score_threshold=config.score_threshold,
-                             max_instances=config.max_instances,
-                             box_consistency_weight=config.box_consistency_weight,
-                             backend=config.inference_backend, device=config.device,
-                             threads=config.inference_threads or None)
+        pipeline = load_pipeline(models, detector_weights=config.detector_weights,
+                                 qnet_weights=config.qnet_weights,
+                                 score_threshold=config.score_threshold,
+                                 max_instances=config.max_instances,
+                                 box_consistency_weight=config.box_consistency_weight,
+                                 backend=config.inference_backend, device=config.device,
+                                 threads=config.inference_threads or None)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
                          f'files): {err}') from err
+    return Estimator(pipeline, conversions.MarkerArrayBuilder(models))
 
 
-class BBPoseNode(Node):
+class BBPoseNode(LifecycleNode):
     """
-    The pose estimation node; the pipeline is built from its parameters.
+    The pose estimation node; ``configure`` builds the pipeline from its parameters.
 
     Args:
-        **kwargs: passed to rclpy's Node (e.g. parameter_overrides, context).
+        **kwargs: passed to rclpy's LifecycleNode (e.g. parameter_overrides, context).
 
     """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.config = declare_parameters(self)
-        self.pipeline = build_pipeline(self.config)
+        declare_parameters(self)
+        self.config = None
+        self.estimator = None
+        self.failure = None          # the reason of the last failed transition
         self.stats = NodeStats()
         self._throttle = KeyedThrottle()
-        self._pairer = StampPairer()
-        self._slot = LatestSlot()
-        self._markers = conversions.MarkerArrayBuilder(self.pipeline.models)
-        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
-                           for name in self.pipeline.models}
-        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
-        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._serving = False
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       qos_profile_system_default)
-        self.create_subscription(Image, 'image', self._on_image, self.config.qos)
-        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
-                                 self.config.qos)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Check the parameters and load the objects and networks."""
+        try:
+            config = read_config(parameter_values(self))
+            self.estimator = build_estimator(config)
+        except InputError as err:
+            return self._fail('configure', err)
+        self.config, self.failure = config, None
+        self.get_logger().info(f'configured: {", ".join(config.objects)}')
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Create the publishers, the subscriptions and the worker thread."""
+        self._pairer = StampPairer()
+        self._slot = LatestSlot()
+        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
+                           for name in self.config.objects}
+        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
+        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._inputs = [
+            self.create_subscription(Image, 'image', self._on_image, self.config.qos),
+            self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
+                                     self.config.qos)]
         self._worker = threading.Thread(target=self._work, name='bbpose_worker', daemon=True)
         self._worker.start()
+        self._serving = True
         self.get_logger().info(
-            f'serving {", ".join(self.pipeline.models)} on {self._topic("image")} + '
+            f'serving {", ".join(self.config.objects)} on {self._topic("image")} + '
             f'{self._topic("camera_info")} ({self.config.qos.reliability.name.lower()}, '
             f'depth {self.config.qos.depth})')
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop taking frames, finish the current one, remove the topics."""
+        self._stop_serving()
+        self.get_logger().info('inactive')
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Free the pipeline; the parameters are read again at the next configure."""
+        self.config = self.estimator = None
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop serving and free everything, from whichever state."""
+        self._release()
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop serving and free everything; the node goes back to unconfigured."""
+        self._release()
+        return SUCCESS
 
     def destroy_node(self) -> None:
         """Stop the worker (waiting at most WORKER_JOIN_TIMEOUT_S), then the node."""
+        self._release()
+        super().destroy_node()
+
+    def _fail(self, transition, err):
+        self.failure = f'{transition} failed: {err}'
+        self.get_logger().error(self.failure)
+        return FAILURE
+
+    def _release(self):
+        self._stop_serving()
+        self.config = self.estimator = None
+
+    def _stop_serving(self):
+        if not self._serving:
+            return
+        self._serving = False
+        for subscription in self._inputs:
+            self.destroy_subscription(subscription)
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
-        super().destroy_node()
+        for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]:
+            self.destroy_publisher(publisher)
+
+    @property
+    def lifecycle_state(self) -> str:
+        """Return 'unconfigured', 'inactive' or 'active'."""
+        if self.config is None:
+            return 'unconfigured'
+        return 'active' if self._serving else 'inactive'
 
     def _on_image(self, message):
         self.stats.count('received')
@@ -169,11 +254,14 @@ class BBPoseNode(Node):
             self.stats.count('superseded')
 
     def _on_timer(self):
-        waiting = self._pairer.waiting
-        if waiting is not None and time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
-            self._drop_unpaired(self._pairer.take_waiting(),
-                                f'none came within {UNPAIRED_TIMEOUT_S} s')
-        status = self.stats.status(f'{self.get_name()}: pose pipeline')
+        if self._serving:
+            waiting = self._pairer.waiting
+            if waiting is not None and \
+                    time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
+                self._drop_unpaired(self._pairer.take_waiting(),
+                                    f'none came within {UNPAIRED_TIMEOUT_S} s')
+        status = self.stats.status(f'{self.get_name()}: pose pipeline', self.lifecycle_state,
+                                   self.failure)
         self._diagnostics_pub.publish(
             diagnostics_message(self.get_clock().now().to_msg(), [status]))
 
@@ -181,9 +269,10 @@ class BBPoseNode(Node):
         """Worker thread: estimate and publish the newest pair until the slot closes."""
         while (item := self._slot.take()) is not None:
             frame, camera = item
+            estimator = self.estimator     # a run-time parameter set may swap it
             try:
-                result = self.pipeline.estimate(frame.image_rgb, camera)
-                self._publish(frame, camera, result.poses)
+                result = estimator.pipeline.estimate(frame.image_rgb, camera)
+                self._publish(frame, camera, result.poses, estimator)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 self._drop('failed', type(err).__name__,
                            f'estimation failed (stamp {_stamp_text(frame.header)}): '
@@ -193,17 +282,17 @@ class BBPoseNode(Node):
                 dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
             self.stats.count('answered')
 
-    def _publish(self, frame, camera, poses):
+    def _publish(self, frame, camera, poses, estimator):
         """Poses first, then the markers that mark the frame answered, then the debug image."""
-        stamped, markers = conversions.frame_messages(frame.header, poses, self._markers)
+        stamped, markers = conversions.frame_messages(frame.header, poses, estimator.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(
-                frame.header, draw_estimates(frame.image_rgb, camera, self.pipeline.models,
-                                             poses)))
+                frame.header, draw_estimates(frame.image_rgb, camera,
+                                             estimator.pipeline.models, poses)))
 
     def _drop_unpaired(self, frame, reason):
         offset_s = self._pairer.nearest_offset_s(conversions.stamp_to_ns(frame.header.stamp))
@@ -243,8 +332,14 @@ def main(args: Sequence[str] | None = None) -> int:
     rclpy.init(args=args)
     try:
         node = BBPoseNode()
-    except (InputError, ParameterException) as err:
+    except ParameterException as err:
         rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
+        rclpy.try_shutdown()
+        return 1
+    if node.get_parameter('autostart').value and (
+            node.trigger_configure() != SUCCESS or node.trigger_activate() != SUCCESS):
+        node.get_logger().fatal(f'cannot start (autostart): {node.failure}')
+        node.destroy_node()
         rclpy.try_shutdown()
         return 1
     try:
