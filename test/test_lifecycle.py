@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-bbpose_node as a managed node, driven through its lifecycle services.
+bbpose_node as a managed node, driven through its lifecycle and parameter services.
 
 One node (``autostart: false``) serves the module; the tests run in file order, each
 starting from the state the previous one left.
@@ -28,12 +28,13 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from test_ros_support import GraphClient, NodeLog, use_private_domain, weight_files
 from test_ros_support import write_params
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.graph.benchmark import camera_messages
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.ros.diagnostics import counts_from_status
 
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
@@ -78,7 +79,7 @@ def set_parameter(client, name, value):
 
 
 def answered(client):
-    """Publish a good frame with a new stamp; returns whether its MarkerArray came."""
+    """Publish a good frame with a new stamp; returns its MarkerArray (None if none came)."""
     client.stamp_s += 1
     image, info = client.pair
     for message in (image, info):
@@ -86,8 +87,23 @@ def answered(client):
     stamp = stamp_to_ns(image.header.stamp)
     client.image.publish(image)
     client.info.publish(info)
-    return client.spin_until(lambda: any(stamp_to_ns(m.markers[0].header.stamp) == stamp
-                                         for m in client.received[MARKERS]))
+
+    def answer():
+        return next((m for m in client.received[MARKERS]
+                     if stamp_to_ns(m.markers[0].header.stamp) == stamp), None)
+    client.spin_until(lambda: answer() is not None)
+    return answer()
+
+
+def reported(markers):
+    """Return the object names of a MarkerArray's boxes."""
+    return {m.ns for m in markers.markers if m.type == Marker.LINE_LIST}
+
+
+def latest_counts(client):
+    """Return the counters of the latest /diagnostics received ({} before the first)."""
+    messages = client.received['/diagnostics']
+    return counts_from_status(messages[-1].status[0]) if messages else {}
 
 
 def last_status(client, **expected):
@@ -151,6 +167,35 @@ def test_activate_again_after_deactivate(graph):
     assert transition(client, Transition.TRANSITION_ACTIVATE)
     assert client.spin_until(lambda: client.image.get_subscription_count() > 0)
     assert answered(client)
+
+
+def test_thresholds_and_objects_change_at_run_time(graph):
+    client, _, _ = graph
+    assert set_parameter(client, 'score_threshold', 1.0).successful
+    assert reported(answered(client)) == set()
+    assert set_parameter(client, 'score_threshold', 0.0).successful
+    assert reported(answered(client)) == {'ape', 'can', 'glue'}
+    assert set_parameter(client, 'objects', ['driller']).successful
+    assert client.node.count_publishers(f'{OUT}/driller/pose') == 1
+    assert reported(answered(client)) == {'driller'}
+
+
+def test_a_bad_run_time_value_is_refused_with_its_reason(graph):
+    client, node, log = graph
+    before = counts_from_status(last_status(client, lifecycle_state='active'))[
+        'parameters_refused']
+    log.mark()
+    for name, value, words in [('objects', ['teapot'], 'teapot'),
+                               ('dataset_dir', '/tmp', 'while the node is unconfigured'),
+                               ('score_threshold', 'high', 'Wrong parameter type'),
+                               ('max_instances', 0, 'out of range')]:
+        result = set_parameter(client, name, value)
+        assert not result.successful and words in result.reason, result.reason
+        assert log.wait_for('WARN', 'set refused', f'parameter {name}'), log.path
+    assert client.spin_until(lambda: latest_counts(client).get('parameters_refused', 0)
+                             >= before + 4)
+    assert reported(answered(client)) == {'driller'}
+    node.check_alive()
 
 
 def test_cleanup_then_shutdown(graph):

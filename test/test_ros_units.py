@@ -14,6 +14,8 @@
 
 """The ROS adapter's parts without a graph: pairing, throttling, conversions, parameters."""
 
+from pathlib import Path
+import re
 import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -26,6 +28,7 @@ from rclpy.qos import QoSReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
+import yaml
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
@@ -34,8 +37,8 @@ from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, parameter_values, read_config
-from bbpose_ros.ros.params import read_params_file
+from bbpose_ros.ros.params import check_value, declare_parameters, PARAMETERS
+from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -188,3 +191,29 @@ def test_declared_parameters_validate_and_set_qos(ros_context, lmo_root):
         declare(ros_context, dataset_dir=str(lmo_root), qos_reliability='sometimes')
     with pytest.raises(InputError, match='device'):
         declare(ros_context, dataset_dir=str(lmo_root), device='tpu')
+
+
+def test_check_value_names_the_parameter_and_the_problem():
+    check_value('score_threshold', 0.5)
+    for name, value, words in [('score_threshold', 'high', 'is not of type double'),
+                               ('score_threshold', 1, 'is not of type double'),
+                               ('score_threshold', 1.5, 'out of range [0.0, 1.0]'),
+                               ('objects', [], 'at least one'),
+                               ('objects', ['ape', 'ape'], 'ape listed more than once'),
+                               ('qos_reliability', 'sometimes', 'not one of reliable'),
+                               ('qnet_weights', '/nonexistent.pt', 'not found')]:
+        with pytest.raises(InputError, match=f'parameter {name}: .*{re.escape(words)}'):
+            check_value(name, value)
+
+
+def test_the_yaml_documents_every_parameter_and_when_it_is_read():
+    text = (Path(__file__).parents[1] / 'config' / 'bbpose.yaml').read_text()
+    values = yaml.safe_load(text)['/**']['ros__parameters']
+    assert set(values) == set(PARAMETERS)
+    lines = text.splitlines()
+    for name, spec in PARAMETERS.items():
+        at = next(k for k, line in enumerate(lines) if line.strip().startswith(f'{name}:'))
+        comment = next(line for line in reversed(lines[:at]) if line.strip().startswith('#')
+                       and line.rstrip().endswith('.'))
+        assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
+        check_value(name, values[name])

@@ -29,9 +29,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from bbpose_ros.core.latency import timing_summary
 
-COUNTERS = ('received', 'answered', 'superseded', 'unpaired', 'bad_image', 'bad_camera_info',
-            'failed')
-DROPS = COUNTERS[2:]
+# Frames dropped, by reason; problems that dropped no frame (each logged as a warning).
+DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'failed')
+WARNINGS = ('parameters_refused',)
+COUNTERS = ('received', 'answered') + DROPS + WARNINGS
 _SUFFIX = '_ms_'
 
 
@@ -42,7 +43,7 @@ class NodeStats:
         self._lock = threading.Lock()
         self._counts = Counter()
         self._timings = deque(maxlen=window)
-        self._dropped_reported = 0
+        self._reported = (0, 0)     # (drops, warnings) at the previous status
 
     def count(self, key: str) -> None:
         """Add one to a counter of COUNTERS."""
@@ -59,19 +60,20 @@ class NodeStats:
         """
         Make a DiagnosticStatus of the counters, latencies and the node's lifecycle state.
 
-        WARN when frames were dropped since the previous status; ERROR with the reason when
-        the last lifecycle transition failed (``failure``). ``lifecycle_state`` is one of
-        unconfigured, inactive, active.
+        WARN when frames were dropped or warnings counted since the previous status; ERROR
+        with the reason when the last lifecycle transition failed (``failure``).
+        ``lifecycle_state`` is one of unconfigured, inactive, active.
         """
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
             summary = timing_summary(list(self._timings))
-        dropped = sum(counts[key] for key in DROPS)
+        problems = (sum(counts[key] for key in DROPS), sum(counts[key] for key in WARNINGS))
         level, message = DiagnosticStatus.OK, f'{counts["answered"]} frames answered'
-        if dropped > self._dropped_reported:
-            level = DiagnosticStatus.WARN
-            message += f', {dropped - self._dropped_reported} dropped since the last report'
-        self._dropped_reported = dropped
+        for now, before, what in zip(problems, self._reported, ('dropped', 'warnings')):
+            if now > before:
+                level = DiagnosticStatus.WARN
+                message += f', {now - before} {what} since the last report'
+        self._reported = problems
         if state != 'active':
             message = f'{state}; {message}'
         if failure is not None:

@@ -37,7 +37,7 @@ newest pair, so frames arriving while it is busy replace each other instead of q
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import threading
 import time
 from typing import Any
@@ -45,10 +45,12 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
@@ -63,8 +65,8 @@ from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, NODE_NAME, NodeConfig
-from bbpose_ros.ros.params import parameter_values, read_config
+from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME, NodeConfig
+from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -133,6 +135,8 @@ class BBPoseNode(LifecycleNode):
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       qos_profile_system_default)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+        self.add_pre_set_parameters_callback(self._before_set_parameters)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Check the parameters and load the objects and networks."""
@@ -211,6 +215,64 @@ class BBPoseNode(LifecycleNode):
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
         for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]:
             self.destroy_publisher(publisher)
+
+    def _before_set_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
+        """
+        Log and count each value the set will refuse, then let rclpy and the check run.
+
+        rclpy refuses a wrong type or range before ``_on_set_parameters`` sees the value,
+        so this is the one place that hears of every refusal.
+        """
+        for parameter in parameters:
+            reason = self._refusal(parameter)
+            if reason is not None:
+                self._warn('parameters_refused', parameter.name, f'set refused: {reason}')
+        return parameters
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Refuse a bad value with its reason; rebuild the pipeline for ``pipeline`` ones."""
+        for parameter in parameters:
+            reason = self._refusal(parameter)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        changes = {p.name: p.value for p in parameters
+                   if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'}
+        if changes and self.config is not None:
+            try:
+                self._rebuild(changes)
+            except InputError as err:
+                self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
+                return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _refusal(self, parameter):
+        """Return why ``parameter``'s new value is refused now, or None."""
+        spec = PARAMETERS.get(parameter.name)
+        if spec is None:       # rclpy's own (use_sim_time)
+            return None
+        if spec.applies == 'start':
+            return f'parameter {parameter.name} is read once at start (read-only)'
+        if spec.applies == 'configure' and self.config is not None:
+            return (f'parameter {parameter.name} is read by the configure transition: set it '
+                    f'while the node is unconfigured (it is {self.lifecycle_state})')
+        try:
+            check_value(parameter.name, parameter.value)
+        except InputError as err:
+            return str(err)
+        return None
+
+    def _rebuild(self, changes):
+        """Build the pipeline with ``changes`` ({name: value}) and swap it in."""
+        config = replace(self.config, **{name: tuple(value) if isinstance(value, list)
+                                         else value for name, value in changes.items()})
+        estimator = build_estimator(config)
+        if self._serving:
+            for name in config.objects:
+                if name not in self._pose_pubs:
+                    self._pose_pubs[name] = self.create_publisher(PoseStamped,
+                                                                  f'~/{name}/pose', 10)
+        self.config, self.estimator = config, estimator
+        self.get_logger().info(f'pipeline rebuilt for {", ".join(changes)}')
 
     @property
     def lifecycle_state(self) -> str:
@@ -305,6 +367,12 @@ class BBPoseNode(LifecycleNode):
         if self._count_drop('unpaired', key):
             self.get_logger().warning(
                 f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
+
+    def _warn(self, counter, key, text):
+        """Count a problem and log ``text`` as a warning, throttled per ``key``."""
+        self.stats.count(counter)
+        if self._throttle.allow(f'{counter}:{key}'):
+            self.get_logger().warning(text)
 
     def _drop(self, counter, key, text):
         """Count a dropped frame and log ``text`` as an error, throttled per ``key``."""

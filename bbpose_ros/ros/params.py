@@ -117,8 +117,14 @@ def _check_weights_file(text):
         raise InputError(f'weights file not found: {text}')
 
 
+def _dataset_path(text):
+    return Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
+
+
 def _check_dataset_dir(text):
-    resolve_dataset_dir(text)
+    path = _dataset_path(text)
+    if not (path / 'models').is_dir():
+        raise InputError(f'{path} has no models/ folder (BOP meshes and models_info.json)')
 
 
 # The table: name -> ParameterSpec, in the order of config/bbpose.yaml.
@@ -266,11 +272,8 @@ def resolve_dataset_dir(text: str) -> Path:
 
     Empty means $BBPOSE_DATASET, or the ``bbpose`` tools' default ../shared/datasets/lmo.
     """
-    path = Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
-    if not (path / 'models').is_dir():
-        raise InputError(f'parameter dataset_dir: {path} has no models/ folder '
-                         f'(BOP meshes and models_info.json)')
-    return path
+    check_value('dataset_dir', text)
+    return _dataset_path(text)
 
 
 def read_params_file(path: Path | str, overrides: Iterable[str] = (),
