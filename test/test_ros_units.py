@@ -39,6 +39,7 @@ from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_fr
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
 from bbpose_ros.ros.params import check_value, declare_parameters, PARAMETERS
 from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
+from bbpose_ros.ros.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -128,7 +129,8 @@ def test_pose_message_uses_ros_quaternion_order():
 
 
 def test_camera_info_k_or_p_and_bad_k():
-    info = CameraInfo(width=640, height=480)
+    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob',
+                      d=[-0.1, 0.0, 0.0, 0.0, 0.0])
     info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
     info.p = [400.0, 0.0, 300.0, 0.0, 0.0, 400.0, 200.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     assert intrinsics_from_camera_info(info, 640, 480, False).fx == 500.0
@@ -217,3 +219,16 @@ def test_the_yaml_documents_every_parameter_and_when_it_is_read():
                        and line.rstrip().endswith('.'))
         assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
         check_value(name, values[name])
+
+
+def test_stamp_checker_tells_repeated_backward_and_future_stamps():
+    checker = StampChecker(future_tolerance_ns=SECOND)
+    now = 100 * SECOND
+    assert checker.check(50 * SECOND, now) is None
+    assert checker.check(50 * SECOND, now)[0] == REPEATED
+    kind, text = checker.check(49 * SECOND, now)
+    assert kind == BACKWARDS and '1.000 s older' in text and 'header.stamp' in text
+    assert checker.check(60 * SECOND, now) is None          # newer again: fine
+    assert checker.check(now + SECOND, now) is None         # within the tolerance
+    kind, text = checker.check(now + 5 * SECOND, now)
+    assert kind == FUTURE and '5.000 s ahead' in text

@@ -29,9 +29,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from bbpose_ros.core.latency import timing_summary
 
-# Frames dropped, by reason; problems that dropped no frame (each logged as a warning).
-DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'failed')
-WARNINGS = ('parameters_refused',)
+# Frames dropped, by reason (values frames_<reason>), and problems that dropped no frame,
+# each logged as a warning (values warnings_<kind>).
+DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'stamp_repeated', 'failed')
+WARNINGS = ('stamp_backwards', 'stamp_future', 'frame_id_empty', 'qos_incompatible',
+            'parameters_refused')
 COUNTERS = ('received', 'answered') + DROPS + WARNINGS
 _SUFFIX = '_ms_'
 
@@ -79,7 +81,8 @@ class NodeStats:
         if failure is not None:
             level, message = DiagnosticStatus.ERROR, f'{failure}; {message}'
         values = [KeyValue(key='lifecycle_state', value=state)]
-        values += [KeyValue(key=f'frames_{key}', value=str(counts[key])) for key in COUNTERS]
+        values += [KeyValue(key=f'{_prefix(key)}{key}', value=str(counts[key]))
+                   for key in COUNTERS]
         values += [KeyValue(key=f'{stage}{_SUFFIX}{stat}', value=f'{ms:.3f}')
                    for stage, stats in summary.items() for stat, ms in stats.items()]
         return DiagnosticStatus(level=level, name=name, message=message,
@@ -104,6 +107,11 @@ def timings_from_status(status: DiagnosticStatus) -> dict[str, dict[str, float]]
 
 
 def counts_from_status(status: DiagnosticStatus) -> dict[str, int]:
-    """{counter: int} read back from a status made by NodeStats.status."""
-    return {item.key[len('frames_'):]: int(item.value) for item in status.values
-            if item.key.startswith('frames_')}
+    """{counter: int} of every counter of COUNTERS, read back from a NodeStats status."""
+    values = {item.key: item.value for item in status.values}
+    return {key: int(values[f'{_prefix(key)}{key}']) for key in COUNTERS
+            if f'{_prefix(key)}{key}' in values}
+
+
+def _prefix(counter):
+    return 'warnings_' if counter in WARNINGS else 'frames_'

@@ -47,11 +47,12 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
+from rclpy.event_handler import QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_system_default
+from rclpy.qos import qos_profile_system_default, QoSPolicyKind
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
@@ -67,11 +68,15 @@ from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
 from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME, NodeConfig
 from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
+from bbpose_ros.ros.stamps import REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
 UNPAIRED_TIMEOUT_S = 1.0    # an image waiting longer for its CameraInfo is dropped
 WORKER_JOIN_TIMEOUT_S = 1.0
+# How far ahead of this node's clock an image stamp may be before it is reported: clocks of
+# synchronised machines agree much better, a camera on its own clock is far off.
+FUTURE_STAMP_TOLERANCE_NS = 1_000_000_000
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 
@@ -153,14 +158,16 @@ class BBPoseNode(LifecycleNode):
         """Create the publishers, the subscriptions and the worker thread."""
         self._pairer = StampPairer()
         self._slot = LatestSlot()
+        self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
         self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
                            for name in self.config.objects}
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
         self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
         self._inputs = [
-            self.create_subscription(Image, 'image', self._on_image, self.config.qos),
-            self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
-                                     self.config.qos)]
+            self.create_subscription(cls, topic, callback, self.config.qos,
+                                     event_callbacks=self._input_events(topic))
+            for cls, topic, callback in ((Image, 'image', self._on_image),
+                                         (CameraInfo, 'camera_info', self._on_camera_info))]
         self._worker = threading.Thread(target=self._work, name='bbpose_worker', daemon=True)
         self._worker.start()
         self._serving = True
@@ -281,14 +288,42 @@ class BBPoseNode(LifecycleNode):
             return 'unconfigured'
         return 'active' if self._serving else 'inactive'
 
+    def _input_events(self, topic):
+        """Event callbacks of an input subscription: incompatible QoS is reported."""
+        def on_incompatible_qos(event: QoSRequestedIncompatibleQoSInfo) -> None:
+            policy = QoSPolicyKind(event.last_policy_kind).name.lower()
+            for _ in range(max(1, event.total_count_change)):
+                self._warn('qos_incompatible', topic,
+                           f'a publisher on {self._topic(topic)} offers QoS incompatible with '
+                           f'this subscription ({policy} policy): nothing it sends arrives; '
+                           f'set parameter qos_reliability (now '
+                           f'{self.get_parameter("qos_reliability").value}) or qos_depth to '
+                           f"match it, or the publisher's QoS")
+        return SubscriptionEventCallbacks(incompatible_qos=on_incompatible_qos)
+
     def _on_image(self, message):
         self.stats.count('received')
         received_s = time.perf_counter()
+        header = message.header
+        odd = self._stamps.check(conversions.stamp_to_ns(header.stamp),
+                                 self.get_clock().now().nanoseconds)
+        if odd is not None and odd[0] == REPEATED:
+            self._warn(REPEATED, REPEATED,
+                       f'image dropped (stamp {_stamp_text(header)}): {odd[1]}')
+            return
+        if odd is not None:
+            self._warn(odd[0], odd[0], f'image (stamp {_stamp_text(header)}) answered '
+                       f'anyway: {odd[1]}')
+        if not header.frame_id:
+            self._warn('frame_id_empty', 'frame_id',
+                       f'image (stamp {_stamp_text(header)}) answered anyway: header.frame_id '
+                       f'is empty, so its poses name no frame')
         try:
-            frame = Frame(message.header, conversions.image_to_rgb(message), received_s)
+            frame = Frame(header, conversions.image_to_rgb(
+                message, self.get_parameter('max_image_pixels').value), received_s)
         except InputError as err:
             self._drop('bad_image', str(err),
-                       f'image dropped (stamp {_stamp_text(message.header)}): {err}')
+                       f'image dropped (stamp {_stamp_text(header)}): {err}')
             return
         pair, displaced = self._pairer.add_image(
             conversions.stamp_to_ns(message.header.stamp), frame, self._sync_slop())
@@ -336,6 +371,8 @@ class BBPoseNode(LifecycleNode):
                 result = estimator.pipeline.estimate(frame.image_rgb, camera)
                 self._publish(frame, camera, result.poses, estimator)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
+                if not self.context.ok():
+                    return        # shutting down: the frame in hand is abandoned
                 self._drop('failed', type(err).__name__,
                            f'estimation failed (stamp {_stamp_text(frame.header)}): '
                            f'{type(err).__name__}: {err}')
@@ -364,25 +401,20 @@ class BBPoseNode(LifecycleNode):
             key, problem = 'offset', (
                 f'no {self._topic("camera_info")} with a stamp within sync_slop = '
                 f'{self._sync_slop()} s; the nearest differs by {offset_s:.3f} s')
-        if self._count_drop('unpaired', key):
-            self.get_logger().warning(
-                f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
+        self._warn('unpaired', key,
+                   f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
 
     def _warn(self, counter, key, text):
-        """Count a problem and log ``text`` as a warning, throttled per ``key``."""
+        """Count ``counter``; log ``text`` as a warning, throttled per (counter, key)."""
         self.stats.count(counter)
         if self._throttle.allow(f'{counter}:{key}'):
             self.get_logger().warning(text)
 
     def _drop(self, counter, key, text):
-        """Count a dropped frame and log ``text`` as an error, throttled per ``key``."""
-        if self._count_drop(counter, key):
-            self.get_logger().error(text)
-
-    def _count_drop(self, counter, key):
-        """Count a dropped frame; returns whether its message may be logged now."""
+        """Count a frame dropped for bad input; log ``text`` as an error, throttled."""
         self.stats.count(counter)
-        return self._throttle.allow(f'{counter}:{key}')
+        if self._throttle.allow(f'{counter}:{key}'):
+            self.get_logger().error(text)
 
     def _sync_slop(self):
         return self.get_parameter('sync_slop').value

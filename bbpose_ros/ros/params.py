@@ -181,6 +181,9 @@ PARAMETERS = {
         'frame'),
     'publish_debug_image': ParameterSpec(
         True, 'Draw and publish ~/debug_image (only while it has subscribers).', 'frame'),
+    'max_image_pixels': ParameterSpec(
+        33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
+        int_range=(1, 2 ** 31 - 1)),
 }
 
 
