@@ -18,6 +18,10 @@ Launch bbpose_node (needs a full ROS 2 install with launch and launch_ros).
     ros2 launch bbpose_ros bbpose.launch.py params_file:=/path/to/bbpose.yaml
     ros2 launch bbpose_ros bbpose.launch.py image:=/cam/image_raw camera_info:=/cam/camera_info
 
+bbpose_node is a managed (lifecycle) node that configures and activates itself
+(``autostart: true`` in the parameters file); with ``autostart: false`` a lifecycle
+manager drives it through ``/bbpose_node/change_state``.
+
 For large images between processes, export FASTRTPS_DEFAULT_PROFILES_FILE with
 config/fastdds_large_images.xml in the camera driver's shell too (see that file).
 """

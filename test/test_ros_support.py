@@ -39,9 +39,20 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 60.0   # bound of every wait; a healthy run takes a fraction of it
 
 
+# The domain the run was started in, read once: use_private_domain changes the variable.
+BASE_DOMAIN = os.environ.get('ROS_DOMAIN_ID')
+
+
 def use_private_domain(offset):
-    """Put this process (and its children) on a ROS domain of its own, loopback only."""
-    os.environ['ROS_DOMAIN_ID'] = str(100 + (os.getpid() + offset) % 100)
+    """
+    Put this process (and its children) on a ROS domain of its own, loopback only.
+
+    The domain is the run's ROS_DOMAIN_ID + ``offset`` when it was given one (``make test``
+    draws one; parallel runs on one machine pass their own, a few apart), else
+    100 + (pid + ``offset``) % 100. Each test module has its own ``offset``.
+    """
+    domain = int(BASE_DOMAIN) + offset if BASE_DOMAIN else 100 + (os.getpid() + offset) % 100
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ['RCUTILS_LOGGING_BUFFERED_STREAM'] = '0'
     os.environ['PYTHONPATH'] = os.pathsep.join(
@@ -102,6 +113,7 @@ class GraphClient:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.received = defaultdict(list)
+        self.clients = {}
 
     def publisher(self, cls, topic):
         """Create a reliable publisher."""
@@ -119,6 +131,17 @@ class GraphClient:
                 return False
             self.executor.spin_once(timeout_sec=0.02)
         return True
+
+    def call(self, srv_type, name, request, timeout_s=TIMEOUT_S):
+        """Call service ``name`` once it is there; returns the response (None on timeout)."""
+        client = self.clients.get(name)
+        if client is None:
+            client = self.clients[name] = self.node.create_client(srv_type, name)
+        if not self.spin_until(client.service_is_ready, timeout_s):
+            return None
+        future = client.call_async(request)
+        self.spin_until(future.done, timeout_s)
+        return future.result()
 
     def close(self):
         """Destroy the node and shut the context down."""

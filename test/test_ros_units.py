@@ -14,6 +14,8 @@
 
 """The ROS adapter's parts without a graph: pairing, throttling, conversions, parameters."""
 
+from pathlib import Path
+import re
 import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -26,6 +28,7 @@ from rclpy.qos import QoSReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
+import yaml
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
@@ -34,7 +37,9 @@ from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, read_params_file
+from bbpose_ros.ros.params import check_value, declare_parameters, PARAMETERS
+from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
+from bbpose_ros.ros.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -124,7 +129,8 @@ def test_pose_message_uses_ros_quaternion_order():
 
 
 def test_camera_info_k_or_p_and_bad_k():
-    info = CameraInfo(width=640, height=480)
+    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob',
+                      d=[-0.1, 0.0, 0.0, 0.0, 0.0])
     info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
     info.p = [400.0, 0.0, 300.0, 0.0, 0.0, 400.0, 200.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     assert intrinsics_from_camera_info(info, 640, 480, False).fx == 500.0
@@ -171,7 +177,8 @@ def declare(context, **values):
     node = rclpy.create_node('params_under_test', context=context, parameter_overrides=[
         Parameter(name, value=value) for name, value in values.items()])
     try:
-        return declare_parameters(node)
+        declare_parameters(node)
+        return read_config(parameter_values(node))
     finally:
         node.destroy_node()
 
@@ -186,3 +193,42 @@ def test_declared_parameters_validate_and_set_qos(ros_context, lmo_root):
         declare(ros_context, dataset_dir=str(lmo_root), qos_reliability='sometimes')
     with pytest.raises(InputError, match='device'):
         declare(ros_context, dataset_dir=str(lmo_root), device='tpu')
+
+
+def test_check_value_names_the_parameter_and_the_problem():
+    check_value('score_threshold', 0.5)
+    for name, value, words in [('score_threshold', 'high', 'is not of type double'),
+                               ('score_threshold', 1, 'is not of type double'),
+                               ('score_threshold', 1.5, 'out of range [0.0, 1.0]'),
+                               ('objects', [], 'at least one'),
+                               ('objects', ['ape', 'ape'], 'ape listed more than once'),
+                               ('qos_reliability', 'sometimes', 'not one of reliable'),
+                               ('qnet_weights', '/nonexistent.pt', 'not found')]:
+        with pytest.raises(InputError, match=f'parameter {name}: .*{re.escape(words)}'):
+            check_value(name, value)
+
+
+def test_the_yaml_documents_every_parameter_and_when_it_is_read():
+    text = (Path(__file__).parents[1] / 'config' / 'bbpose.yaml').read_text()
+    values = yaml.safe_load(text)['/**']['ros__parameters']
+    assert set(values) == set(PARAMETERS)
+    lines = text.splitlines()
+    for name, spec in PARAMETERS.items():
+        at = next(k for k, line in enumerate(lines) if line.strip().startswith(f'{name}:'))
+        comment = next(line for line in reversed(lines[:at]) if line.strip().startswith('#')
+                       and line.rstrip().endswith('.'))
+        assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
+        check_value(name, values[name])
+
+
+def test_stamp_checker_tells_repeated_backward_and_future_stamps():
+    checker = StampChecker(future_tolerance_ns=SECOND)
+    now = 100 * SECOND
+    assert checker.check(50 * SECOND, now) is None
+    assert checker.check(50 * SECOND, now)[0] == REPEATED
+    kind, text = checker.check(49 * SECOND, now)
+    assert kind == BACKWARDS and '1.000 s older' in text and 'header.stamp' in text
+    assert checker.check(60 * SECOND, now) is None          # newer again: fine
+    assert checker.check(now + SECOND, now) is None         # within the tolerance
+    kind, text = checker.check(now + 5 * SECOND, now)
+    assert kind == FUTURE and '5.000 s ahead' in text

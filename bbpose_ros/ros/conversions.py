@@ -46,9 +46,14 @@ def stamp_to_ns(stamp: Time) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-def image_to_rgb(image: Image) -> np.ndarray:
-    """(H, W, 3) uint8 RGB array of a sensor_msgs/Image; InputError names a bad field."""
-    return decode_image(image.height, image.width, image.encoding, image.step, image.data)
+def image_to_rgb(image: Image, max_pixels: int | None = None) -> np.ndarray:
+    """
+    (H, W, 3) uint8 RGB array of a sensor_msgs/Image; InputError names a bad field.
+
+    An image of more than ``max_pixels`` pixels is refused before it is copied.
+    """
+    return decode_image(image.height, image.width, image.encoding, image.step, image.data,
+                        max_pixels)
 
 
 def rgb_to_image(header: Header, image_rgb: npt.ArrayLike) -> Image:

@@ -29,9 +29,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from bbpose_ros.core.latency import timing_summary
 
-COUNTERS = ('received', 'answered', 'superseded', 'unpaired', 'bad_image', 'bad_camera_info',
-            'failed')
-DROPS = COUNTERS[2:]
+# Frames dropped, by reason (values frames_<reason>), and problems that dropped no frame,
+# each logged as a warning (values warnings_<kind>).
+DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'stamp_repeated', 'failed')
+WARNINGS = ('stamp_backwards', 'stamp_future', 'frame_id_empty', 'qos_incompatible',
+            'parameters_refused')
+COUNTERS = ('received', 'answered') + DROPS + WARNINGS
 _SUFFIX = '_ms_'
 
 
@@ -42,7 +45,7 @@ class NodeStats:
         self._lock = threading.Lock()
         self._counts = Counter()
         self._timings = deque(maxlen=window)
-        self._dropped_reported = 0
+        self._reported = (0, 0)     # (drops, warnings) at the previous status
 
     def count(self, key: str) -> None:
         """Add one to a counter of COUNTERS."""
@@ -54,18 +57,32 @@ class NodeStats:
         with self._lock:
             self._timings.append(dict(timings_ms))
 
-    def status(self, name: str) -> DiagnosticStatus:
-        """Make a DiagnosticStatus, WARN when frames were dropped since the previous one."""
+    def status(self, name: str, state: str = 'active',
+               failure: str | None = None) -> DiagnosticStatus:
+        """
+        Make a DiagnosticStatus of the counters, latencies and the node's lifecycle state.
+
+        WARN when frames were dropped or warnings counted since the previous status; ERROR
+        with the reason when the last lifecycle transition failed (``failure``).
+        ``lifecycle_state`` is one of unconfigured, inactive, active.
+        """
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
             summary = timing_summary(list(self._timings))
-        dropped = sum(counts[key] for key in DROPS)
+        problems = (sum(counts[key] for key in DROPS), sum(counts[key] for key in WARNINGS))
         level, message = DiagnosticStatus.OK, f'{counts["answered"]} frames answered'
-        if dropped > self._dropped_reported:
-            level = DiagnosticStatus.WARN
-            message += f', {dropped - self._dropped_reported} dropped since the last report'
-        self._dropped_reported = dropped
-        values = [KeyValue(key=f'frames_{key}', value=str(counts[key])) for key in COUNTERS]
+        for now, before, what in zip(problems, self._reported, ('dropped', 'warnings')):
+            if now > before:
+                level = DiagnosticStatus.WARN
+                message += f', {now - before} {what} since the last report'
+        self._reported = problems
+        if state != 'active':
+            message = f'{state}; {message}'
+        if failure is not None:
+            level, message = DiagnosticStatus.ERROR, f'{failure}; {message}'
+        values = [KeyValue(key='lifecycle_state', value=state)]
+        values += [KeyValue(key=f'{_prefix(key)}{key}', value=str(counts[key]))
+                   for key in COUNTERS]
         values += [KeyValue(key=f'{stage}{_SUFFIX}{stat}', value=f'{ms:.3f}')
                    for stage, stats in summary.items() for stat, ms in stats.items()]
         return DiagnosticStatus(level=level, name=name, message=message,
@@ -90,6 +107,11 @@ def timings_from_status(status: DiagnosticStatus) -> dict[str, dict[str, float]]
 
 
 def counts_from_status(status: DiagnosticStatus) -> dict[str, int]:
-    """{counter: int} read back from a status made by NodeStats.status."""
-    return {item.key[len('frames_'):]: int(item.value) for item in status.values
-            if item.key.startswith('frames_')}
+    """{counter: int} of every counter of COUNTERS, read back from a NodeStats status."""
+    values = {item.key: item.value for item in status.values}
+    return {key: int(values[f'{_prefix(key)}{key}']) for key in COUNTERS
+            if f'{_prefix(key)}{key}' in values}
+
+
+def _prefix(counter):
+    return 'warnings_' if counter in WARNINGS else 'frames_'

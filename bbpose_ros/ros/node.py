@@ -15,6 +15,13 @@
 """
 ``bbpose_node``: Image + CameraInfo in; poses, markers, a debug image and diagnostics out.
 
+A managed (lifecycle) node. ``configure`` checks the parameters and loads the objects and
+the networks (a failure is a failed transition, its reason logged, and the node stays
+unconfigured); ``activate`` creates the publishers, the subscriptions and the worker;
+``deactivate`` stops them; ``cleanup`` frees the pipeline. With ``autostart`` (default)
+the node configures and activates itself at start and exits with code 1 when it cannot.
+``/diagnostics`` is published in every state.
+
 Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8) and
 ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within ``sync_slop``.
 Publications, stamped with the image's header (stamp and frame_id):
@@ -30,7 +37,7 @@ newest pair, so frames arriving while it is busy replace each other instead of q
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import threading
 import time
 from typing import Any
@@ -38,11 +45,14 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
+from rclpy.event_handler import QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
-from rclpy.qos import qos_profile_system_default
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_system_default, QoSPolicyKind
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
@@ -56,12 +66,19 @@ from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import declare_parameters, NODE_NAME, NodeConfig
+from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME, NodeConfig
+from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
+from bbpose_ros.ros.stamps import REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
 UNPAIRED_TIMEOUT_S = 1.0    # an image waiting longer for its CameraInfo is dropped
 WORKER_JOIN_TIMEOUT_S = 1.0
+# How far ahead of this node's clock an image stamp may be before it is reported: clocks of
+# synchronised machines agree much better, a camera on its own clock is far off.
+FUTURE_STAMP_TOLERANCE_NS = 1_000_000_000
+SUCCESS = TransitionCallbackReturn.SUCCESS
+FAILURE = TransitionCallbackReturn.FAILURE
 
 
 @dataclass(frozen=True)
@@ -73,75 +90,240 @@ class Frame:
     received_s: float
 
 
-def build_pipeline(config: NodeConfig) -> PosePipeline:
-    """Build the PosePipeline of a NodeConfig: meshes from dataset_dir, learned stages."""
+@dataclass(frozen=True)
+class Estimator:
+    """A pipeline and the MarkerArrayBuilder of its objects: the worker takes both at once."""
+
+    pipeline: PosePipeline
+    markers: conversions.MarkerArrayBuilder
+
+
+def build_estimator(config: NodeConfig) -> Estimator:
+    """Build the Estimator of a NodeConfig: meshes from dataset_dir, learned stages."""
     try:
         models = load_bop_models(config.dataset_dir, list(config.objects))
     except InputError as err:
         raise InputError(f'parameter objects / dataset_dir: loading the objects from '
                          f'{config.dataset_dir}: {err}') from err
     try:
-        return load_pipeline(models, detector_weights=config.detector_weights,
-                             qnet_weights=config.qnet_weights,
-                             score_threshold=config.score_threshold,
-                             max_instances=config.max_instances,
-                             box_consistency_weight=config.box_consistency_weight,
-                             backend=config.inference_backend, device=config.device,
-                             threads=config.inference_threads or None)
+        pipeline = load_pipeline(models, detector_weights=config.detector_weights,
+                                 qnet_weights=config.qnet_weights,
+                                 score_threshold=config.score_threshold,
+                                 max_instances=config.max_instances,
+                                 box_consistency_weight=config.box_consistency_weight,
+                                 backend=config.inference_backend, device=config.device,
+                                 threads=config.inference_threads or None)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
                          f'files): {err}') from err
+    return Estimator(pipeline, conversions.MarkerArrayBuilder(models))
 
 
-class BBPoseNode(Node):
+class BBPoseNode(LifecycleNode):
     """
-    The pose estimation node; the pipeline is built from its parameters.
+    The pose estimation node; ``configure`` builds the pipeline from its parameters.
 
     Args:
-        **kwargs: passed to rclpy's Node (e.g. parameter_overrides, context).
+        **kwargs: passed to rclpy's LifecycleNode (e.g. parameter_overrides, context).
 
     """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.config = declare_parameters(self)
-        self.pipeline = build_pipeline(self.config)
+        declare_parameters(self)
+        self.config = None
+        self.estimator = None
+        self.failure = None          # the reason of the last failed transition
         self.stats = NodeStats()
         self._throttle = KeyedThrottle()
-        self._pairer = StampPairer()
-        self._slot = LatestSlot()
-        self._markers = conversions.MarkerArrayBuilder(self.pipeline.models)
-        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
-                           for name in self.pipeline.models}
-        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
-        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._serving = False
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       qos_profile_system_default)
-        self.create_subscription(Image, 'image', self._on_image, self.config.qos)
-        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info,
-                                 self.config.qos)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+        self.add_pre_set_parameters_callback(self._before_set_parameters)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Check the parameters and load the objects and networks."""
+        try:
+            config = read_config(parameter_values(self))
+            self.estimator = build_estimator(config)
+        except InputError as err:
+            return self._fail('configure', err)
+        self.config, self.failure = config, None
+        self.get_logger().info(f'configured: {", ".join(config.objects)}')
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Create the publishers, the subscriptions and the worker thread."""
+        self._pairer = StampPairer()
+        self._slot = LatestSlot()
+        self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
+        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
+                           for name in self.config.objects}
+        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
+        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
+        self._inputs = [
+            self.create_subscription(cls, topic, callback, self.config.qos,
+                                     event_callbacks=self._input_events(topic))
+            for cls, topic, callback in ((Image, 'image', self._on_image),
+                                         (CameraInfo, 'camera_info', self._on_camera_info))]
         self._worker = threading.Thread(target=self._work, name='bbpose_worker', daemon=True)
         self._worker.start()
+        self._serving = True
         self.get_logger().info(
-            f'serving {", ".join(self.pipeline.models)} on {self._topic("image")} + '
+            f'serving {", ".join(self.config.objects)} on {self._topic("image")} + '
             f'{self._topic("camera_info")} ({self.config.qos.reliability.name.lower()}, '
             f'depth {self.config.qos.depth})')
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop taking frames, finish the current one, remove the topics."""
+        self._stop_serving()
+        self.get_logger().info('inactive')
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Free the pipeline; the parameters are read again at the next configure."""
+        self.config = self.estimator = None
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop serving and free everything, from whichever state."""
+        self._release()
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop serving and free everything; the node goes back to unconfigured."""
+        self._release()
+        return SUCCESS
 
     def destroy_node(self) -> None:
         """Stop the worker (waiting at most WORKER_JOIN_TIMEOUT_S), then the node."""
+        self._release()
+        super().destroy_node()
+
+    def _fail(self, transition, err):
+        self.failure = f'{transition} failed: {err}'
+        self.get_logger().error(self.failure)
+        return FAILURE
+
+    def _release(self):
+        self._stop_serving()
+        self.config = self.estimator = None
+
+    def _stop_serving(self):
+        if not self._serving:
+            return
+        self._serving = False
+        for subscription in self._inputs:
+            self.destroy_subscription(subscription)
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
-        super().destroy_node()
+        for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]:
+            self.destroy_publisher(publisher)
+
+    def _before_set_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
+        """
+        Log and count each value the set will refuse, then let rclpy and the check run.
+
+        rclpy refuses a wrong type or range before ``_on_set_parameters`` sees the value,
+        so this is the one place that hears of every refusal.
+        """
+        for parameter in parameters:
+            reason = self._refusal(parameter)
+            if reason is not None:
+                self._warn('parameters_refused', parameter.name, f'set refused: {reason}')
+        return parameters
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Refuse a bad value with its reason; rebuild the pipeline for ``pipeline`` ones."""
+        for parameter in parameters:
+            reason = self._refusal(parameter)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        changes = {p.name: p.value for p in parameters
+                   if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'}
+        if changes and self.config is not None:
+            try:
+                self._rebuild(changes)
+            except InputError as err:
+                self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
+                return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _refusal(self, parameter):
+        """Return why ``parameter``'s new value is refused now, or None."""
+        spec = PARAMETERS.get(parameter.name)
+        if spec is None:       # rclpy's own (use_sim_time)
+            return None
+        if spec.applies == 'start':
+            return f'parameter {parameter.name} is read once at start (read-only)'
+        if spec.applies == 'configure' and self.config is not None:
+            return (f'parameter {parameter.name} is read by the configure transition: set it '
+                    f'while the node is unconfigured (it is {self.lifecycle_state})')
+        try:
+            check_value(parameter.name, parameter.value)
+        except InputError as err:
+            return str(err)
+        return None
+
+    def _rebuild(self, changes):
+        """Build the pipeline with ``changes`` ({name: value}) and swap it in."""
+        config = replace(self.config, **{name: tuple(value) if isinstance(value, list)
+                                         else value for name, value in changes.items()})
+        estimator = build_estimator(config)
+        if self._serving:
+            for name in config.objects:
+                if name not in self._pose_pubs:
+                    self._pose_pubs[name] = self.create_publisher(PoseStamped,
+                                                                  f'~/{name}/pose', 10)
+        self.config, self.estimator = config, estimator
+        self.get_logger().info(f'pipeline rebuilt for {", ".join(changes)}')
+
+    @property
+    def lifecycle_state(self) -> str:
+        """Return 'unconfigured', 'inactive' or 'active'."""
+        if self.config is None:
+            return 'unconfigured'
+        return 'active' if self._serving else 'inactive'
+
+    def _input_events(self, topic):
+        """Event callbacks of an input subscription: incompatible QoS is reported."""
+        def on_incompatible_qos(event: QoSRequestedIncompatibleQoSInfo) -> None:
+            policy = QoSPolicyKind(event.last_policy_kind).name.lower()
+            for _ in range(max(1, event.total_count_change)):
+                self._warn('qos_incompatible', topic,
+                           f'a publisher on {self._topic(topic)} offers QoS incompatible with '
+                           f'this subscription ({policy} policy): nothing it sends arrives; '
+                           f'set parameter qos_reliability (now '
+                           f'{self.get_parameter("qos_reliability").value}) or qos_depth to '
+                           f"match it, or the publisher's QoS")
+        return SubscriptionEventCallbacks(incompatible_qos=on_incompatible_qos)
 
     def _on_image(self, message):
         self.stats.count('received')
         received_s = time.perf_counter()
+        header = message.header
+        odd = self._stamps.check(conversions.stamp_to_ns(header.stamp),
+                                 self.get_clock().now().nanoseconds)
+        if odd is not None and odd[0] == REPEATED:
+            self._warn(REPEATED, REPEATED,
+                       f'image dropped (stamp {_stamp_text(header)}): {odd[1]}')
+            return
+        if odd is not None:
+            self._warn(odd[0], odd[0], f'image (stamp {_stamp_text(header)}) answered '
+                       f'anyway: {odd[1]}')
+        if not header.frame_id:
+            self._warn('frame_id_empty', 'frame_id',
+                       f'image (stamp {_stamp_text(header)}) answered anyway: header.frame_id '
+                       f'is empty, so its poses name no frame')
         try:
-            frame = Frame(message.header, conversions.image_to_rgb(message), received_s)
+            frame = Frame(header, conversions.image_to_rgb(
+                message, self.get_parameter('max_image_pixels').value), received_s)
         except InputError as err:
             self._drop('bad_image', str(err),
-                       f'image dropped (stamp {_stamp_text(message.header)}): {err}')
+                       f'image dropped (stamp {_stamp_text(header)}): {err}')
             return
         pair, displaced = self._pairer.add_image(
             conversions.stamp_to_ns(message.header.stamp), frame, self._sync_slop())
@@ -169,11 +351,14 @@ class BBPoseNode(Node):
             self.stats.count('superseded')
 
     def _on_timer(self):
-        waiting = self._pairer.waiting
-        if waiting is not None and time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
-            self._drop_unpaired(self._pairer.take_waiting(),
-                                f'none came within {UNPAIRED_TIMEOUT_S} s')
-        status = self.stats.status(f'{self.get_name()}: pose pipeline')
+        if self._serving:
+            waiting = self._pairer.waiting
+            if waiting is not None and \
+                    time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
+                self._drop_unpaired(self._pairer.take_waiting(),
+                                    f'none came within {UNPAIRED_TIMEOUT_S} s')
+        status = self.stats.status(f'{self.get_name()}: pose pipeline', self.lifecycle_state,
+                                   self.failure)
         self._diagnostics_pub.publish(
             diagnostics_message(self.get_clock().now().to_msg(), [status]))
 
@@ -181,10 +366,13 @@ class BBPoseNode(Node):
         """Worker thread: estimate and publish the newest pair until the slot closes."""
         while (item := self._slot.take()) is not None:
             frame, camera = item
+            estimator = self.estimator     # a run-time parameter set may swap it
             try:
-                result = self.pipeline.estimate(frame.image_rgb, camera)
-                self._publish(frame, camera, result.poses)
+                result = estimator.pipeline.estimate(frame.image_rgb, camera)
+                self._publish(frame, camera, result.poses, estimator)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
+                if not self.context.ok():
+                    return        # shutting down: the frame in hand is abandoned
                 self._drop('failed', type(err).__name__,
                            f'estimation failed (stamp {_stamp_text(frame.header)}): '
                            f'{type(err).__name__}: {err}')
@@ -193,17 +381,17 @@ class BBPoseNode(Node):
                 dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
             self.stats.count('answered')
 
-    def _publish(self, frame, camera, poses):
+    def _publish(self, frame, camera, poses, estimator):
         """Poses first, then the markers that mark the frame answered, then the debug image."""
-        stamped, markers = conversions.frame_messages(frame.header, poses, self._markers)
+        stamped, markers = conversions.frame_messages(frame.header, poses, estimator.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(
-                frame.header, draw_estimates(frame.image_rgb, camera, self.pipeline.models,
-                                             poses)))
+                frame.header, draw_estimates(frame.image_rgb, camera,
+                                             estimator.pipeline.models, poses)))
 
     def _drop_unpaired(self, frame, reason):
         offset_s = self._pairer.nearest_offset_s(conversions.stamp_to_ns(frame.header.stamp))
@@ -213,19 +401,20 @@ class BBPoseNode(Node):
             key, problem = 'offset', (
                 f'no {self._topic("camera_info")} with a stamp within sync_slop = '
                 f'{self._sync_slop()} s; the nearest differs by {offset_s:.3f} s')
-        if self._count_drop('unpaired', key):
-            self.get_logger().warning(
-                f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
+        self._warn('unpaired', key,
+                   f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
+
+    def _warn(self, counter, key, text):
+        """Count ``counter``; log ``text`` as a warning, throttled per (counter, key)."""
+        self.stats.count(counter)
+        if self._throttle.allow(f'{counter}:{key}'):
+            self.get_logger().warning(text)
 
     def _drop(self, counter, key, text):
-        """Count a dropped frame and log ``text`` as an error, throttled per ``key``."""
-        if self._count_drop(counter, key):
-            self.get_logger().error(text)
-
-    def _count_drop(self, counter, key):
-        """Count a dropped frame; returns whether its message may be logged now."""
+        """Count a frame dropped for bad input; log ``text`` as an error, throttled."""
         self.stats.count(counter)
-        return self._throttle.allow(f'{counter}:{key}')
+        if self._throttle.allow(f'{counter}:{key}'):
+            self.get_logger().error(text)
 
     def _sync_slop(self):
         return self.get_parameter('sync_slop').value
@@ -243,8 +432,14 @@ def main(args: Sequence[str] | None = None) -> int:
     rclpy.init(args=args)
     try:
         node = BBPoseNode()
-    except (InputError, ParameterException) as err:
+    except ParameterException as err:
         rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
+        rclpy.try_shutdown()
+        return 1
+    if node.get_parameter('autostart').value and (
+            node.trigger_configure() != SUCCESS or node.trigger_activate() != SUCCESS):
+        node.get_logger().fatal(f'cannot start (autostart): {node.failure}')
+        node.destroy_node()
         rclpy.try_shutdown()
         return 1
     try:

@@ -13,23 +13,32 @@
 # limitations under the License.
 
 """
-The parameters of ``bbpose_node``: declarations with descriptors, and their validation.
+The parameters of ``bbpose_node``: one table of declarations, descriptors and checks.
 
-Read-only parameters need a restart to change (they shape the pipeline, the topics or the
-QoS); the others (``sync_slop``, ``rectified``, ``publish_debug_image``) are read on every
-frame and may be set at run time. ``config/bbpose.yaml`` documents each one.
+Each parameter says when the node reads it (``ParameterSpec.applies``):
+
+* ``start``: once, when the process starts (read-only);
+* ``configure``: by the configure transition; settable while the node is unconfigured;
+* ``pipeline``: shapes the pipeline; a run-time set rebuilds it (the set fails, with the
+  reason, if the rebuild does) and the node keeps serving meanwhile;
+* ``frame``: read for every frame; settable at any time.
+
+A value is checked by ``check_value`` (type, range, then the parameter's own check), both
+when the configure transition reads it and when it is set at run time, so a new parameter
+is one table entry. ``config/bbpose.yaml`` documents each one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 import os
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
 from ament_index_python.packages import get_package_share_directory
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 import yaml
 
@@ -45,68 +54,146 @@ NODE_NAME = 'bbpose_node'
 LMO_OBJECTS = ['ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher']
 RELIABILITY = {'reliable': QoSReliabilityPolicy.RELIABLE,
                'best_effort': QoSReliabilityPolicy.BEST_EFFORT}
+APPLIES = ('start', 'configure', 'pipeline', 'frame')
 
 
-def _descriptor(description, read_only=True, int_range=None, float_range=None):
-    """Make a ParameterDescriptor; ranges are (from, to) inclusive."""
-    descriptor = ParameterDescriptor(description=description, read_only=read_only)
-    if int_range is not None:
-        descriptor.integer_range = [IntegerRange(from_value=int_range[0],
-                                                 to_value=int_range[1], step=1)]
-    if float_range is not None:
-        descriptor.floating_point_range = [FloatingPointRange(from_value=float_range[0],
-                                                              to_value=float_range[1])]
-    return descriptor
+@dataclass(frozen=True)
+class ParameterSpec:
+    """
+    One parameter of the node.
+
+    Attributes:
+        default: the declared default; its type is the parameter's (rclpy refuses others).
+        description: one line for the descriptor (config/bbpose.yaml says more).
+        applies: when the node reads it, one of APPLIES.
+        int_range, float_range: (from, to), inclusive, for the descriptor and the check.
+        check: raises InputError saying what is wrong with a value of the right type.
+
+    """
+
+    default: Any
+    description: str
+    applies: str
+    int_range: tuple[int, int] | None = None
+    float_range: tuple[float, float] | None = None
+    check: Callable[[Any], None] | None = field(default=None, compare=False)
+
+    @property
+    def descriptor(self) -> ParameterDescriptor:
+        """Return the ParameterDescriptor (read-only for ``start`` parameters)."""
+        descriptor = ParameterDescriptor(description=self.description,
+                                         read_only=self.applies == 'start')
+        if self.int_range is not None:
+            descriptor.integer_range = [IntegerRange(from_value=self.int_range[0],
+                                                     to_value=self.int_range[1], step=1)]
+        if self.float_range is not None:
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=self.float_range[0], to_value=self.float_range[1])]
+        return descriptor
 
 
-# name -> (default, descriptor); the default fixes the type (rclpy refuses other types).
+def _one_of(choices):
+    def check(value):
+        if value not in choices:
+            raise InputError(f'"{value}" is not one of {", ".join(choices)}')
+    return check
+
+
+def _check_objects(names):
+    if not names:
+        raise InputError('give at least one object name')
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise InputError(f'{", ".join(repeated)} listed more than once')
+
+
+def _check_device(device):
+    if device != 'cpu' and not device.startswith('cuda'):
+        raise InputError(f'"{device}" is not cpu, cuda or cuda:N')
+
+
+def _check_weights_file(text):
+    if text and not Path(text).is_file():
+        raise InputError(f'weights file not found: {text}')
+
+
+def _dataset_path(text):
+    return Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
+
+
+def _check_dataset_dir(text):
+    path = _dataset_path(text)
+    if not (path / 'models').is_dir():
+        raise InputError(f'{path} has no models/ folder (BOP meshes and models_info.json)')
+
+
+# The table: name -> ParameterSpec, in the order of config/bbpose.yaml.
 PARAMETERS = {
-    'objects': (LMO_OBJECTS, _descriptor(
-        'Names of the objects to report (BOP LineMod names, e.g. ape); one pose topic each.')),
-    'dataset_dir': ('', _descriptor(
-        'BOP dataset folder with models/ (meshes in mm, models_info.json) and optionally '
-        'models_eval/; empty: $BBPOSE_DATASET, else ../shared/datasets/lmo.')),
-    'detector_weights': ('', _descriptor(
-        '2D detector weights file (.pt); empty: the weights shipped in bbpose_ros/weights.')),
-    'qnet_weights': ('', _descriptor(
-        'Q-Net rotation weights file (.pt); empty: the weights shipped in bbpose_ros/weights.')),
-    'score_threshold': (0.3, _descriptor(
-        'Detections scoring below this (0..1) are ignored.', float_range=(0.0, 1.0))),
-    'max_instances': (1, _descriptor(
-        'Most instances reported per object and frame.', int_range=(1, 100))),
-    'box_consistency_weight': (DEFAULT_BOX_CONSISTENCY_WEIGHT, _descriptor(
-        'With a multi-hypothesis Q-Net, how much the Bounding Box '
-        'Equation misfit (largest side residual / longest box side) counts against the '
-        'log-probability in choosing a rotation; 0: the best-scored one.',
-        float_range=(0.0, 1000.0))),
-    'inference_backend': ('onnxruntime', _descriptor(
-        'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).')),
-    'device': ('cpu', _descriptor(
-        'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch backend).')),
-    'inference_threads': (0, _descriptor(
-        'CPU (intra-op) threads of the inference backend; 0: its default (one per core); '
-        '1: a single thread, leaving the other cores to DDS and the executor.',
-        int_range=(0, 256))),
-    'qos_reliability': ('reliable', _descriptor(
-        'Reliability of the image and camera_info subscriptions: reliable or best_effort.')),
-    'qos_depth': (1, _descriptor(
-        'History depth (keep-last) of the image and camera_info subscriptions; the node '
-        'processes only the newest frame whatever the depth.', int_range=(1, 100))),
-    'sync_slop': (0.01, _descriptor(
-        'Seconds by which image and camera_info header stamps may differ to pair; negative: '
-        'pair every image with the latest camera_info.', read_only=False,
-        float_range=(-1.0, 10.0))),
-    'rectified': (False, _descriptor(
-        'True when the images are rectified: use CameraInfo P[:3, :3], otherwise K.',
-        read_only=False)),
-    'publish_debug_image': (True, _descriptor(
-        'Draw and publish ~/debug_image (only while it has subscribers).', read_only=False)),
+    'autostart': ParameterSpec(
+        True, 'Configure and activate at start; false: wait in the unconfigured state for '
+        'the lifecycle services.', 'start'),
+    'objects': ParameterSpec(
+        LMO_OBJECTS, 'Names of the objects to report (BOP LineMod names, e.g. ape); one pose '
+        'topic each.', 'pipeline', check=_check_objects),
+    'dataset_dir': ParameterSpec(
+        '', 'BOP dataset folder with models/ (meshes in mm, models_info.json) and optionally '
+        'models_eval/; empty: $BBPOSE_DATASET, else ../shared/datasets/lmo.', 'configure',
+        check=_check_dataset_dir),
+    'detector_weights': ParameterSpec(
+        '', '2D detector weights file (.pt); empty: the weights shipped in bbpose_ros/weights.',
+        'configure', check=_check_weights_file),
+    'qnet_weights': ParameterSpec(
+        '', 'Q-Net rotation weights file (.pt); empty: the weights shipped in '
+        'bbpose_ros/weights.', 'configure', check=_check_weights_file),
+    'score_threshold': ParameterSpec(
+        0.3, 'Detections scoring below this (0..1) are ignored.', 'pipeline',
+        float_range=(0.0, 1.0)),
+    'max_instances': ParameterSpec(
+        1, 'Most instances reported per object and frame.', 'pipeline', int_range=(1, 100)),
+    'box_consistency_weight': ParameterSpec(
+        DEFAULT_BOX_CONSISTENCY_WEIGHT, 'With a multi-hypothesis Q-Net, how much the Bounding '
+        'Box Equation misfit (largest side residual / longest box side) counts against the '
+        'log-probability in choosing a rotation; 0: the best-scored one.', 'pipeline',
+        float_range=(0.0, 1000.0)),
+    'inference_backend': ParameterSpec(
+        'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
+        'configure', check=_one_of(BACKENDS)),
+    'device': ParameterSpec(
+        'cpu', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
+        'backend).', 'configure', check=_check_device),
+    'inference_threads': ParameterSpec(
+        0, 'CPU (intra-op) threads of the inference backend; 0: its default (one per core); '
+        '1: a single thread, leaving the other cores to DDS and the executor.', 'configure',
+        int_range=(0, 256)),
+    'qos_reliability': ParameterSpec(
+        'reliable', 'Reliability of the image and camera_info subscriptions: reliable or '
+        'best_effort.', 'configure', check=_one_of(RELIABILITY)),
+    'qos_depth': ParameterSpec(
+        1, 'History depth (keep-last) of the image and camera_info subscriptions; the node '
+        'processes only the newest frame whatever the depth.', 'configure',
+        int_range=(1, 100)),
+    'sync_slop': ParameterSpec(
+        0.01, 'Seconds by which image and camera_info header stamps may differ to pair; '
+        'negative: pair every image with the latest camera_info.', 'frame',
+        float_range=(-1.0, 10.0)),
+    'rectified': ParameterSpec(
+        False, 'True when the images are rectified: use CameraInfo P[:3, :3], otherwise K.',
+        'frame'),
+    'publish_debug_image': ParameterSpec(
+        True, 'Draw and publish ~/debug_image (only while it has subscribers).', 'frame'),
+    'max_image_pixels': ParameterSpec(
+        33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
+        int_range=(1, 2 ** 31 - 1)),
 }
 
 
 @dataclass(frozen=True)
 class NodeConfig:
-    """The read-only parameters, validated; paths are None where the shipped files apply."""
+    """
+    The values the configure transition read, checked; the pipeline is built from them.
+
+    Paths are resolved; a weights path is None where the shipped file applies.
+    """
 
     objects: tuple[str, ...]
     dataset_dir: Path
@@ -121,41 +208,65 @@ class NodeConfig:
     qos: QoSProfile
 
 
-def declare_parameters(node: Node) -> NodeConfig:
+def declare_parameters(node: Node) -> None:
     """
-    Declare every parameter on ``node`` and return the validated NodeConfig.
+    Declare every parameter of PARAMETERS on ``node``, with its descriptor.
 
-    rclpy raises InvalidParameterTypeException / InvalidParameterValueException for a value
-    of the wrong type or out of range; other problems raise InputError naming the parameter.
+    rclpy raises InvalidParameterTypeException / InvalidParameterValueException for an
+    override of the wrong type or out of range.
     """
-    for name, (default, descriptor) in PARAMETERS.items():
-        node.declare_parameter(name, default, descriptor)
-    value = {name: node.get_parameter(name).value for name in PARAMETERS}
-    if not value['objects']:
-        raise InputError('parameter objects: give at least one object name')
-    if value['qos_reliability'] not in RELIABILITY:
-        raise InputError(f'parameter qos_reliability: "{value["qos_reliability"]}" is not one '
-                         f'of {", ".join(RELIABILITY)}')
-    if value['device'] != 'cpu' and not value['device'].startswith('cuda'):
-        raise InputError(f'parameter device: "{value["device"]}" is not cpu, cuda or cuda:N')
-    if value['inference_backend'] not in BACKENDS:
-        raise InputError(f'parameter inference_backend: "{value["inference_backend"]}" is not '
-                         f'one of {", ".join(BACKENDS)}')
-    if value['inference_backend'] != 'torch' and value['device'] != 'cpu':
-        raise InputError(f'parameters inference_backend / device: {value["inference_backend"]} '
-                         f'runs on the CPU only; use inference_backend torch for device '
-                         f'{value["device"]}')
+    for name, spec in PARAMETERS.items():
+        node.declare_parameter(name, spec.default, spec.descriptor)
+
+
+def check_value(name: str, value: Any) -> None:
+    """Raise InputError naming parameter ``name`` when ``value`` is not one it takes."""
+    spec = PARAMETERS[name]
+    expected = Parameter.Type.from_parameter_value(spec.default)
+    # An empty list has no element type; the parameter's own check judges it.
+    if value != [] and Parameter.Type.from_parameter_value(value) != expected:
+        raise InputError(f'parameter {name}: {value!r} is not of type '
+                         f'{expected.name.lower()}')
+    limits = spec.int_range or spec.float_range
+    if limits is not None and not limits[0] <= value <= limits[1]:
+        raise InputError(f'parameter {name}: {value} is out of range [{limits[0]}, '
+                         f'{limits[1]}]')
+    if spec.check is not None:
+        try:
+            spec.check(value)
+        except InputError as err:
+            raise InputError(f'parameter {name}: {err}') from err
+
+
+def read_config(values: dict[str, Any]) -> NodeConfig:
+    """
+    Check parameter ``values`` ({name: value}, every parameter) and make the NodeConfig.
+
+    Raises InputError naming the first parameter that is wrong.
+    """
+    for name in PARAMETERS:
+        check_value(name, values[name])
+    if values['inference_backend'] != 'torch' and values['device'] != 'cpu':
+        raise InputError(f'parameters inference_backend / device: '
+                         f'{values["inference_backend"]} runs on the CPU only; use '
+                         f'inference_backend torch for device {values["device"]}')
     return NodeConfig(
-        objects=tuple(value['objects']),
-        dataset_dir=resolve_dataset_dir(value['dataset_dir']),
-        detector_weights=_weights_file('detector_weights', value['detector_weights']),
-        qnet_weights=_weights_file('qnet_weights', value['qnet_weights']),
-        score_threshold=value['score_threshold'], max_instances=value['max_instances'],
-        box_consistency_weight=value['box_consistency_weight'],
-        inference_backend=value['inference_backend'], device=value['device'],
-        inference_threads=value['inference_threads'],
-        qos=QoSProfile(depth=value['qos_depth'],
-                       reliability=RELIABILITY[value['qos_reliability']]))
+        objects=tuple(values['objects']),
+        dataset_dir=resolve_dataset_dir(values['dataset_dir']),
+        detector_weights=Path(values['detector_weights']) if values['detector_weights']
+        else None,
+        qnet_weights=Path(values['qnet_weights']) if values['qnet_weights'] else None,
+        score_threshold=values['score_threshold'], max_instances=values['max_instances'],
+        box_consistency_weight=values['box_consistency_weight'],
+        inference_backend=values['inference_backend'], device=values['device'],
+        inference_threads=values['inference_threads'],
+        qos=QoSProfile(depth=values['qos_depth'],
+                       reliability=RELIABILITY[values['qos_reliability']]))
+
+
+def parameter_values(node: Node) -> dict[str, Any]:
+    """Return {name: current value} of every parameter of PARAMETERS on ``node``."""
+    return {name: node.get_parameter(name).value for name in PARAMETERS}
 
 
 def resolve_dataset_dir(text: str) -> Path:
@@ -164,20 +275,8 @@ def resolve_dataset_dir(text: str) -> Path:
 
     Empty means $BBPOSE_DATASET, or the ``bbpose`` tools' default ../shared/datasets/lmo.
     """
-    path = Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
-    if not (path / 'models').is_dir():
-        raise InputError(f'parameter dataset_dir: {path} has no models/ folder '
-                         f'(BOP meshes and models_info.json)')
-    return path
-
-
-def _weights_file(name, text):
-    if not text:
-        return None
-    path = Path(text)
-    if not path.is_file():
-        raise InputError(f'parameter {name}: weights file not found: {path}')
-    return path
+    check_value('dataset_dir', text)
+    return _dataset_path(text)
 
 
 def read_params_file(path: Path | str, overrides: Iterable[str] = (),
@@ -196,7 +295,7 @@ def read_params_file(path: Path | str, overrides: Iterable[str] = (),
         raise InputError(f'parameters file not found: {path}') from err
     except yaml.YAMLError as err:
         raise InputError(f'parameters file {path} is not valid YAML: {err}') from err
-    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    values = {name: spec.default for name, spec in PARAMETERS.items()}
     for block in ('/**', node_name, f'/{node_name}'):
         values.update((content.get(block) or {}).get('ros__parameters') or {})
     for override in overrides:

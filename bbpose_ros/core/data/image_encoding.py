@@ -27,28 +27,39 @@ import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
 
-# encoding -> (channels, conversion to RGB or None)
+# encoding -> (channels, conversion to RGB or None). A Bayer mosaic is named by its first
+# 2x2 block in ROS and by the second row's pair in OpenCV (as cv_bridge maps them).
 ENCODINGS = {
     'rgb8': (3, None),
     'bgr8': (3, cv2.COLOR_BGR2RGB),
     'rgba8': (4, cv2.COLOR_RGBA2RGB),
     'bgra8': (4, cv2.COLOR_BGRA2RGB),
     'mono8': (1, cv2.COLOR_GRAY2RGB),
+    'bayer_rggb8': (1, cv2.COLOR_BayerBG2RGB),
+    'bayer_bggr8': (1, cv2.COLOR_BayerRG2RGB),
+    'bayer_gbrg8': (1, cv2.COLOR_BayerGR2RGB),
+    'bayer_grbg8': (1, cv2.COLOR_BayerGB2RGB),
 }
 
 
 def decode_image(height: int, width: int, encoding: str, step: int,
-                 data: bytes | bytearray | memoryview | array.array | np.ndarray) -> np.ndarray:
+                 data: bytes | bytearray | memoryview | array.array | np.ndarray,
+                 max_pixels: int | None = None) -> np.ndarray:
     """
     Turn Image fields into an (height, width, 3) uint8 RGB array (a copy).
 
-    Supports the 8-bit encodings in ENCODINGS; rows may be padded (step >= width * channels).
+    Supports the 8-bit encodings in ENCODINGS (Bayer mosaics are demosaiced bilinearly);
+    rows may be padded (step >= width * channels). An image of more than ``max_pixels``
+    pixels is refused before anything is copied.
     """
     if encoding not in ENCODINGS:
         raise InputError(f'unsupported image encoding "{encoding}" (field encoding); '
                          f'supported: {", ".join(ENCODINGS)}')
     if height <= 0 or width <= 0:
         raise InputError(f'empty image: height={height}, width={width} (fields height, width)')
+    if max_pixels is not None and height * width > max_pixels:
+        raise InputError(f'image of {width}x{height} pixels, more than the limit of '
+                         f'{max_pixels} (fields height, width)')
     channels, conversion = ENCODINGS[encoding]
     if step < width * channels:
         raise InputError(f'step {step} is smaller than width * channels = {width * channels} '

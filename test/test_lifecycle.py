@@ -1,0 +1,209 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+bbpose_node as a managed node, driven through its lifecycle and parameter services.
+
+One node (``autostart: false``) serves the module; the tests run in file order, each
+starting from the state the previous one left.
+"""
+
+from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+import pytest
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+from test_ros_support import GraphClient, NodeLog, use_private_domain, weight_files
+from test_ros_support import write_params
+from visualization_msgs.msg import Marker, MarkerArray
+
+from bbpose_ros.bags import topics
+from bbpose_ros.cli.graph.benchmark import camera_messages
+from bbpose_ros.cli.graph.replay import NodeProcess
+from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.ros.diagnostics import counts_from_status
+
+OUT = '/bbpose_node'
+MARKERS = f'{OUT}/markers'
+
+
+@pytest.fixture(scope='module')
+def graph(lmo, lmo_root, tmp_path_factory):
+    """Start the node unconfigured and a client; stop both at the end."""
+    use_private_domain(offset=6)
+    folder = tmp_path_factory.mktemp('lifecycle')
+    log = NodeLog(folder / 'node.log')
+    params = write_params(folder / 'params.yaml', lmo_root,
+                          weight_files(folder), autostart=False)
+    node = NodeProcess(params, stderr=log.file)
+    client = GraphClient()
+    client.image = client.publisher(Image, topics.IMAGE_TOPIC)
+    client.info = client.publisher(CameraInfo, topics.CAMERA_INFO_TOPIC)
+    client.subscribe(MarkerArray, MARKERS)
+    client.subscribe(DiagnosticArray, '/diagnostics')
+    client.pair = camera_messages(lmo.frames()[:1])[0]
+    client.stamp_s = 1_700_000_000
+    yield client, node, log
+    client.close()
+    node.stop()
+
+
+def state(client):
+    """Return the node's lifecycle state label, from its get_state service."""
+    return client.call(GetState, f'{OUT}/get_state', GetState.Request()).current_state.label
+
+
+def transition(client, transition_id):
+    """Ask for a transition; returns ChangeState's success."""
+    request = ChangeState.Request(transition=Transition(id=transition_id))
+    return client.call(ChangeState, f'{OUT}/change_state', request).success
+
+
+def set_parameter(client, name, value):
+    """Set one node parameter at run time; returns the SetParametersResult."""
+    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return client.call(SetParameters, f'{OUT}/set_parameters', request).results[0]
+
+
+def answered(client):
+    """Publish a good frame with a new stamp; returns its MarkerArray (None if none came)."""
+    client.stamp_s += 1
+    image, info = client.pair
+    for message in (image, info):
+        message.header.stamp.sec, message.header.stamp.nanosec = client.stamp_s, 0
+    stamp = stamp_to_ns(image.header.stamp)
+    client.image.publish(image)
+    client.info.publish(info)
+
+    def answer():
+        return next((m for m in client.received[MARKERS]
+                     if stamp_to_ns(m.markers[0].header.stamp) == stamp), None)
+    client.spin_until(lambda: answer() is not None)
+    return answer()
+
+
+def reported(markers):
+    """Return the object names of a MarkerArray's boxes."""
+    return {m.ns for m in markers.markers if m.type == Marker.LINE_LIST}
+
+
+def latest_counts(client):
+    """Return the counters of the latest /diagnostics received ({} before the first)."""
+    messages = client.received['/diagnostics']
+    return counts_from_status(messages[-1].status[0]) if messages else {}
+
+
+def last_status(client, **expected):
+    """Wait for a /diagnostics status whose values include ``expected``; return it."""
+    def matching():
+        for message in reversed(client.received['/diagnostics']):
+            values = {v.key: v.value for v in message.status[0].values}
+            if all(values.get(key) == value for key, value in expected.items()):
+                return message.status[0]
+        return None
+    client.received['/diagnostics'].clear()
+    client.spin_until(lambda: matching() is not None)
+    return matching()
+
+
+def test_starts_unconfigured_without_topics(graph):
+    client, node, _ = graph
+    assert state(client) == 'unconfigured'
+    assert last_status(client, lifecycle_state='unconfigured') is not None
+    assert client.image.get_subscription_count() == 0
+    assert client.node.count_publishers(MARKERS) == 0
+    node.check_alive()
+
+
+def test_a_failed_configure_gives_its_reason_and_stays_unconfigured(graph):
+    client, node, log = graph
+    assert set_parameter(client, 'objects', ['ape', 'teapot']).successful
+    log.mark()
+    assert not transition(client, Transition.TRANSITION_CONFIGURE)
+    assert log.wait_for('ERROR', 'configure failed', 'teapot'), log.path
+    assert state(client) == 'unconfigured'
+    status = last_status(client, lifecycle_state='unconfigured')
+    assert 'configure failed' in status.message and 'teapot' in status.message
+    node.check_alive()
+
+
+def test_configure_loads_without_serving(graph):
+    client, _, _ = graph
+    assert set_parameter(client, 'objects', ['ape', 'can', 'glue']).successful
+    assert transition(client, Transition.TRANSITION_CONFIGURE)
+    assert state(client) == 'inactive'
+    assert client.image.get_subscription_count() == 0
+    assert client.node.count_publishers(MARKERS) == 0
+
+
+def test_activate_serves_and_deactivate_stops(graph):
+    client, _, _ = graph
+    assert transition(client, Transition.TRANSITION_ACTIVATE)
+    assert state(client) == 'active'
+    assert client.spin_until(lambda: client.image.get_subscription_count() > 0
+                             and client.node.count_publishers(MARKERS) > 0)
+    assert answered(client)
+    assert transition(client, Transition.TRANSITION_DEACTIVATE)
+    assert state(client) == 'inactive'
+    assert client.spin_until(lambda: client.image.get_subscription_count() == 0
+                             and client.node.count_publishers(MARKERS) == 0)
+
+
+def test_activate_again_after_deactivate(graph):
+    client, _, _ = graph
+    assert transition(client, Transition.TRANSITION_ACTIVATE)
+    assert client.spin_until(lambda: client.image.get_subscription_count() > 0)
+    assert answered(client)
+
+
+def test_thresholds_and_objects_change_at_run_time(graph):
+    client, _, _ = graph
+    assert set_parameter(client, 'score_threshold', 1.0).successful
+    assert reported(answered(client)) == set()
+    assert set_parameter(client, 'score_threshold', 0.0).successful
+    assert reported(answered(client)) == {'ape', 'can', 'glue'}
+    assert set_parameter(client, 'objects', ['driller']).successful
+    assert client.node.count_publishers(f'{OUT}/driller/pose') == 1
+    assert reported(answered(client)) == {'driller'}
+
+
+def test_a_bad_run_time_value_is_refused_with_its_reason(graph):
+    client, node, log = graph
+    before = counts_from_status(last_status(client, lifecycle_state='active'))[
+        'parameters_refused']
+    log.mark()
+    for name, value, words in [('objects', ['teapot'], 'teapot'),
+                               ('dataset_dir', '/tmp', 'while the node is unconfigured'),
+                               ('score_threshold', 'high', 'Wrong parameter type'),
+                               ('max_instances', 0, 'out of range')]:
+        result = set_parameter(client, name, value)
+        assert not result.successful and words in result.reason, result.reason
+        assert log.wait_for('WARN', 'set refused', f'parameter {name}'), log.path
+    assert client.spin_until(lambda: latest_counts(client).get('parameters_refused', 0)
+                             >= before + 4)
+    assert reported(answered(client)) == {'driller'}
+    node.check_alive()
+
+
+def test_cleanup_then_shutdown(graph):
+    client, node, _ = graph
+    assert transition(client, Transition.TRANSITION_DEACTIVATE)
+    assert transition(client, Transition.TRANSITION_CLEANUP)
+    assert state(client) == 'unconfigured'
+    assert last_status(client, lifecycle_state='unconfigured') is not None
+    assert transition(client, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
+    assert state(client) == 'finalized'
+    node.check_alive()
