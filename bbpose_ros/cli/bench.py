@@ -32,14 +32,14 @@ from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.graph.benchmark import camera_messages, run_graph
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, RSS_SETTLE_S, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros import conversions
-from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
+from bbpose_ros.ros.node import build_estimator
+from bbpose_ros.ros.params import read_config, read_params_file
 
 
 def add_parser(subparsers):
@@ -93,22 +93,20 @@ def node_overrides(args):
 
 
 def bench_frames(frames, values, warmup):
-    """Time the stages on ``frames`` with the pipeline of node parameter ``values``."""
-    models = load_bop_models(resolve_dataset_dir(values['dataset_dir']), values['objects'])
-    pipeline = load_pipeline(
-        models, detector_weights=values['detector_weights'] or None,
-        qnet_weights=values['qnet_weights'] or None, score_threshold=values['score_threshold'],
-        max_instances=values['max_instances'], backend=values['inference_backend'],
-        device=values['device'], threads=values['inference_threads'] or None,
-        box_consistency_weight=values['box_consistency_weight'])
+    """Time the stages on ``frames`` with the pipeline the node builds from ``values``."""
+    estimator = build_estimator(read_config(values))
+    pipeline = estimator.pipeline
+    if isinstance(pipeline, PoseTracker):     # the stages are timed on the pipeline itself
+        pipeline = pipeline.pipeline
     header = Header(frame_id=topics.DEFAULT_FRAME_ID)
-    markers = conversions.MarkerArrayBuilder(models)
     report = benchmark_frames(
         frames, pipeline, lambda image: conversions.rgb_to_image(header, image),
         conversions.image_to_rgb,
-        lambda poses: conversions.frame_messages(header, poses, markers), warmup=warmup)
+        lambda poses: conversions.frame_messages(header, poses, estimator.markers),
+        warmup=warmup)
     report.update(inference_backend=values['inference_backend'],
-                  inference_threads=values['inference_threads'] or os.cpu_count())
+                  inference_threads=values['inference_threads'] or os.cpu_count(),
+                  refine_hypotheses=values['refine_hypotheses'] if values['refine'] else 0)
     return report
 
 

@@ -36,7 +36,7 @@ The subscription callbacks only decode and pair; a worker thread runs the pipeli
 newest pair, so frames arriving while it is busy replace each other instead of queueing.
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import threading
 import time
@@ -62,6 +62,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
 from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.refinement import load_pose_refiner
+from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
@@ -92,19 +94,34 @@ class Frame:
 
 @dataclass(frozen=True)
 class Estimator:
-    """A pipeline and the MarkerArrayBuilder of its objects: the worker takes both at once."""
+    """
+    A pipeline and the MarkerArrayBuilder of its objects: the worker takes both at once.
 
-    pipeline: PosePipeline
+    ``pipeline`` is a PosePipeline, or a PoseTracker around one (same ``estimate`` and
+    ``models``).
+    """
+
+    pipeline: PosePipeline | PoseTracker
     markers: conversions.MarkerArrayBuilder
 
 
-def build_estimator(config: NodeConfig) -> Estimator:
-    """Build the Estimator of a NodeConfig: meshes from dataset_dir, learned stages."""
+def build_estimator(config: NodeConfig,
+                    log: Callable[[str], None] | None = None) -> Estimator:
+    """
+    Build the Estimator of a NodeConfig: meshes from dataset_dir, learned stages, refiner.
+
+    ``log`` gets a line for each viewpoint model built (once per mesh, then cached). With
+    ``tracking`` the Estimator's pipeline is a PoseTracker around the PosePipeline.
+    """
     try:
         models = load_bop_models(config.dataset_dir, list(config.objects))
     except InputError as err:
         raise InputError(f'parameter objects / dataset_dir: loading the objects from '
                          f'{config.dataset_dir}: {err}') from err
+    refiner = None
+    if config.refine:
+        refiner = load_pose_refiner(models, min_score=config.refine_min_score,
+                                    progress=False, log=log)
     try:
         pipeline = load_pipeline(models, detector_weights=config.detector_weights,
                                  qnet_weights=config.qnet_weights,
@@ -112,10 +129,15 @@ def build_estimator(config: NodeConfig) -> Estimator:
                                  max_instances=config.max_instances,
                                  box_consistency_weight=config.box_consistency_weight,
                                  backend=config.inference_backend, device=config.device,
-                                 threads=config.inference_threads or None)
+                                 threads=config.inference_threads or None, refiner=refiner,
+                                 refine_hypotheses=config.refine_hypotheses)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
                          f'files): {err}') from err
+    if config.tracking:
+        pipeline = PoseTracker(pipeline, TrackingConfig(
+            redetect_every=config.tracking_redetect_every,
+            min_track_score=config.tracking_min_score))
     return Estimator(pipeline, conversions.MarkerArrayBuilder(models))
 
 
@@ -147,7 +169,7 @@ class BBPoseNode(LifecycleNode):
         """Check the parameters and load the objects and networks."""
         try:
             config = read_config(parameter_values(self))
-            self.estimator = build_estimator(config)
+            self.estimator = build_estimator(config, self.get_logger().info)
         except InputError as err:
             return self._fail('configure', err)
         self.config, self.failure = config, None
@@ -272,7 +294,7 @@ class BBPoseNode(LifecycleNode):
         """Build the pipeline with ``changes`` ({name: value}) and swap it in."""
         config = replace(self.config, **{name: tuple(value) if isinstance(value, list)
                                          else value for name, value in changes.items()})
-        estimator = build_estimator(config)
+        estimator = build_estimator(config, self.get_logger().info)
         if self._serving:
             for name in config.objects:
                 if name not in self._pose_pubs:

@@ -46,6 +46,7 @@ from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.backends import BACKENDS
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -155,6 +156,25 @@ PARAMETERS = {
         'Box Equation misfit (largest side residual / longest box side) counts against the '
         'log-probability in choosing a rotation; 0: the best-scored one.', 'pipeline',
         float_range=(0.0, 1000.0)),
+    'refine': ParameterSpec(
+        True, 'Refine each pose by aligning the mesh silhouette with the image (region-based, '
+        'no learning); its score becomes the pose confidence.', 'pipeline'),
+    'refine_hypotheses': ParameterSpec(
+        DEFAULT_REFINE_HYPOTHESES, "How many of each detection's best-ranked rotation "
+        'hypotheses are refined; the best-scored is kept (cost grows with it).', 'pipeline',
+        int_range=(1, 8)),
+    'refine_min_score': ParameterSpec(
+        0.0, 'Refined poses scoring below this (0..1: share of contour lines that agree with '
+        'the image) are dropped; 0 keeps all.', 'pipeline', float_range=(0.0, 1.0)),
+    'tracking': ParameterSpec(
+        False, 'Start each refined object from its pose in the previous frame and run the '
+        'detector and Q-Net only when needed (needs refine).', 'pipeline'),
+    'tracking_redetect_every': ParameterSpec(
+        10, 'With tracking, run the detector and Q-Net at least every this many frames, so '
+        'new objects are found.', 'pipeline', int_range=(1, 1000)),
+    'tracking_min_score': ParameterSpec(
+        0.5, 'With tracking, a track whose refinement scores below this (0..1) is lost.',
+        'pipeline', float_range=(0.0, 1.0)),
     'inference_backend': ParameterSpec(
         'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         'configure', check=_one_of(BACKENDS)),
@@ -202,6 +222,12 @@ class NodeConfig:
     score_threshold: float
     max_instances: int
     box_consistency_weight: float
+    refine: bool
+    refine_hypotheses: int
+    refine_min_score: float
+    tracking: bool
+    tracking_redetect_every: int
+    tracking_min_score: float
     inference_backend: str
     device: str
     inference_threads: int
@@ -246,6 +272,9 @@ def read_config(values: dict[str, Any]) -> NodeConfig:
     """
     for name in PARAMETERS:
         check_value(name, values[name])
+    if values['tracking'] and not values['refine']:
+        raise InputError('parameters tracking / refine: tracking follows refined poses; set '
+                         'refine true or tracking false')
     if values['inference_backend'] != 'torch' and values['device'] != 'cpu':
         raise InputError(f'parameters inference_backend / device: '
                          f'{values["inference_backend"]} runs on the CPU only; use '
@@ -258,6 +287,10 @@ def read_config(values: dict[str, Any]) -> NodeConfig:
         qnet_weights=Path(values['qnet_weights']) if values['qnet_weights'] else None,
         score_threshold=values['score_threshold'], max_instances=values['max_instances'],
         box_consistency_weight=values['box_consistency_weight'],
+        refine=values['refine'], refine_hypotheses=values['refine_hypotheses'],
+        refine_min_score=values['refine_min_score'], tracking=values['tracking'],
+        tracking_redetect_every=values['tracking_redetect_every'],
+        tracking_min_score=values['tracking_min_score'],
         inference_backend=values['inference_backend'], device=values['device'],
         inference_threads=values['inference_threads'],
         qos=QoSProfile(depth=values['qos_depth'],
