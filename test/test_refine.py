@@ -231,3 +231,12 @@ def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, l
     assert tracker.tracks == {}
     with pytest.raises(InputError, match='PoseRefiner'):
         PoseTracker(PosePipeline(pipeline.models, detector, rotations))
+
+
+def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, lmo_frames):
+    models, _ = viewpoint_models
+    frame = lmo_frames[0]
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, lambda image: [],
+                            lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models),
+                            refine_hypotheses=2)
+    assert pipeline.estimate(frame.load_image(), frame.camera).poses == []

@@ -25,6 +25,7 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES, load_pose_refiner
 
 FRAMES = 3
 
@@ -39,7 +40,8 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     out = tmp_path / 'out' / 'report.json'
     result = subprocess.run(
         [sys.executable, '-m', 'bbpose_ros.cli.main', 'replay-eval', '--bag', tmp_path / 'bag',
-         '--json', out, '--plots', tmp_path / 'plots', '--params', params],
+         '--json', out, '--plots', tmp_path / 'plots', '--params', params,
+         '--compare-tracking'],
         capture_output=True, text=True, timeout=300, cwd=REPO_ROOT)
     assert result.returncode == 0, result.stderr
     assert 'mean' in result.stdout and f'{FRAMES} sent, {FRAMES} answered' in result.stdout
@@ -52,7 +54,15 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert {'end_to_end', 'detector', 'rotation', 'total'} <= set(report['timing_ms'])
     assert report['timing_ms']['end_to_end']['median'] > 0
 
-    offline = evaluate(frames, load_pipeline(lmo_models, *weights, score_threshold=0.0),
+    # The second replay, with tracking on, answered every frame too.
+    assert report['tracking']['off']['mean'] == report['mean']
+    assert report['tracking']['on']['frames'] == {'sent': FRAMES, 'answered': FRAMES}
+    assert 'tracking on: ADD(-S)' in result.stdout
+
+    offline = evaluate(frames, load_pipeline(lmo_models, *weights, score_threshold=0.0,
+                                             refiner=load_pose_refiner(lmo_models,
+                                                                       progress=False),
+                                             refine_hypotheses=DEFAULT_REFINE_HYPOTHESES),
                        boxes='detector', rotation='estimator', progress=False)
     for name, values in offline['objects'].items():
         for key in ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px'):

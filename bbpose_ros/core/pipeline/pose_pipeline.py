@@ -190,8 +190,9 @@ class PosePipeline:
             candidates = rotations.shape[1]
             timings['hypothesis_selection'] = _ms_since(stage)
         stage = time.perf_counter()
-        poses = self.translations(camera, [d for d in detections for _ in range(candidates)],
-                                  np.reshape(rotations, (-1, 3, 3)))
+        poses = [] if not detections else self.translations(
+            camera, [d for d in detections for _ in range(candidates)],
+            np.reshape(rotations, (-1, 3, 3)))
         timings['translation'] = _ms_since(stage)
         if self.refiner is not None and poses:
             stage = time.perf_counter()
