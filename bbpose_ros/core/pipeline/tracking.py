@@ -97,7 +97,7 @@ class PoseTracker:
 
     @property
     def models(self) -> dict:
-        """The pipeline's {name: ObjectModel}: a tracker stands in for its pipeline."""
+        """Return the pipeline's {name: ObjectModel}: a tracker stands in for its pipeline."""
         return self.pipeline.models
 
     def reset(self) -> None:
