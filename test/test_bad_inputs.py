@@ -36,6 +36,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
+from test_camera_model import DISTORTIONS, redistortion_maps
 from test_ros_support import GraphClient, NodeLog, REPO_ROOT, TIMEOUT_S, use_private_domain
 from test_ros_support import weight_files, write_params
 from visualization_msgs.msg import Marker, MarkerArray
@@ -165,6 +166,32 @@ def _sizes_differ(image, info):
     info.width, info.height = 800, 800
 
 
+def _distorted(name):
+    """Re-distort the frame with a known D and say so in its CameraInfo."""
+    def spoil(image, info):
+        maps = redistortion_maps(name, np.array(info.k).reshape(3, 3))
+        _set_pixels(image, cv2.remap(_pixels(image), *maps, cv2.INTER_LINEAR), 'rgb8')
+        info.distortion_model, info.d = name, DISTORTIONS[name]
+    return spoil
+
+
+def _distortion(model, d):
+    def spoil(image, info):
+        info.distortion_model, info.d = model, d
+    return spoil
+
+
+def _binned(image, info):
+    _set_pixels(image, cv2.resize(_pixels(image), (320, 240), interpolation=cv2.INTER_AREA),
+                'rgb8')
+    info.binning_x = info.binning_y = 2
+
+
+def _roi(image, info):
+    _set_pixels(image, _pixels(image)[60:420, 100:500], 'rgb8')
+    info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 100, 60, 400, 360
+
+
 def _stamp(offset_s):
     """Set the bad frame's stamp ``offset_s`` from the previous good frame's."""
     def spoil(image, info):
@@ -238,6 +265,16 @@ KINDS = {
                                 log=('ERROR', 'fields k and p')),
     'image and CameraInfo sizes disagreeing': Kind(_sizes_differ, counter='bad_camera_info',
                                                    log=('ERROR', 'fields width, height')),
+    'plumb_bob distortion': Kind(_distorted('plumb_bob'), answered=True),
+    'equidistant distortion': Kind(_distorted('equidistant'), answered=True),
+    'unsupported distortion model (fov)': Kind(
+        _distortion('fov', [0.1]), counter='bad_camera_info',
+        log=('ERROR', 'field distortion_model "fov"')),
+    'D of the wrong length for plumb_bob': Kind(
+        _distortion('plumb_bob', [-0.2, 0.05, 0.0]), counter='bad_camera_info',
+        log=('ERROR', 'field d holds 3 coefficients')),
+    'binning 2 x 2': Kind(_binned, answered=True),
+    'ROI (400 x 360 at 100, 60)': Kind(_roi, answered=True),
     'stamp out of order': Kind(_stamp(-0.5), answered=True, counter='stamp_backwards',
                                log=('WARN', 'header.stamp', 'older')),
     'stamp repeated': Kind(_stamp(0.0), counter='stamp_repeated',

@@ -25,13 +25,11 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSReliabilityPolicy
-from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 import yaml
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.ros import conversions
@@ -126,19 +124,6 @@ def test_pose_message_uses_ros_quaternion_order():
     q = message.pose.orientation
     assert np.allclose(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])), rotation)
     assert (message.pose.position.x, message.pose.position.z) == (0.1, 0.9)
-
-
-def test_camera_info_k_or_p_and_bad_k():
-    info = CameraInfo(width=640, height=480, distortion_model='plumb_bob',
-                      d=[-0.1, 0.0, 0.0, 0.0, 0.0])
-    info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
-    info.p = [400.0, 0.0, 300.0, 0.0, 0.0, 400.0, 200.0, 0.0, 0.0, 0.0, 1.0, 0.0]
-    assert intrinsics_from_camera_info(info, 640, 480, False).fx == 500.0
-    assert intrinsics_from_camera_info(info, 640, 480, True).fx == 400.0
-    assert intrinsics_from_camera_info(info, 320, 240, False).fx == 250.0
-    info.k = [0.0] * 9
-    with pytest.raises(InputError, match='field k'):
-        intrinsics_from_camera_info(info, 640, 480, False)
 
 
 def test_diagnostics_round_trip():

@@ -24,7 +24,8 @@ from rosbags.rosbag2 import Reader
 from bbpose_ros.bags import topics
 from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.geometry.camera import CameraIntrinsics, intrinsics_from_camera_info
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
 
 
 @dataclass
@@ -35,8 +36,9 @@ class BagFrame:
     Attributes:
         stamp_ns: header stamp of the image, nanoseconds.
         frame_id: header frame_id of the image.
-        image_rgb: (H, W, 3) uint8.
-        camera: CameraIntrinsics from the CameraInfo with the same stamp (None if absent).
+        image_rgb: (H, W, 3) uint8; rectified when its CameraInfo gives a distortion.
+        camera: CameraIntrinsics of ``image_rgb`` from the CameraInfo with the same stamp
+            (None if absent).
         ground_truth: {object name: [(rotation (3, 3), translation (3,) metres), ...]}.
 
     """
@@ -76,12 +78,15 @@ def read_bag_frames(path, image_topic=topics.IMAGE_TOPIC,
                 poses[stamp][name].append(topics.pose_from_message(message))
     finally:
         reader.close()
-    return [_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}))
+    rectifier = Rectifier()
+    return [_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}), rectifier)
             for stamp in sorted(images)]
 
 
-def _frame(stamp, image, info, poses):
+def _frame(stamp, image, info, poses, rectifier):
     rgb = decode_image(image.height, image.width, image.encoding, image.step, image.data)
-    camera = None if info is None else intrinsics_from_camera_info(
-        info, image.width, image.height)
-    return BagFrame(stamp, image.header.frame_id, rgb, camera, dict(poses))
+    if info is None:
+        return BagFrame(stamp, image.header.frame_id, rgb, None, dict(poses))
+    model = camera_model(info, image.width, image.height)
+    return BagFrame(stamp, image.header.frame_id, rectifier(rgb, model), model.intrinsics,
+                    dict(poses))

@@ -59,7 +59,7 @@ from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.geometry.camera import intrinsics_from_camera_info
+from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
 from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
@@ -181,6 +181,7 @@ class BBPoseNode(LifecycleNode):
         self._pairer = StampPairer()
         self._slot = LatestSlot()
         self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
+        self._rectifier = Rectifier()      # the worker's
         self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
                            for name in self.config.objects}
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
@@ -363,8 +364,7 @@ class BBPoseNode(LifecycleNode):
     def _hand_off(self, frame, info):
         height, width = frame.image_rgb.shape[:2]
         try:
-            camera = intrinsics_from_camera_info(
-                info, width, height, self.get_parameter('rectified').value)
+            camera = camera_model(info, width, height, self.get_parameter('rectified').value)
         except InputError as err:
             self._drop('bad_camera_info', str(err),
                        f'image dropped (stamp {_stamp_text(frame.header)}): {err}')
@@ -387,11 +387,13 @@ class BBPoseNode(LifecycleNode):
     def _work(self):
         """Worker thread: estimate and publish the newest pair until the slot closes."""
         while (item := self._slot.take()) is not None:
-            frame, camera = item
+            frame, model = item
             estimator = self.estimator     # a run-time parameter set may swap it
             try:
-                result = estimator.pipeline.estimate(frame.image_rgb, camera)
-                self._publish(frame, camera, result.poses, estimator)
+                image_rgb = self._rectifier(frame.image_rgb, model)
+                result = estimator.pipeline.estimate(image_rgb, model.intrinsics)
+                self._publish(frame.header, image_rgb, model.intrinsics, result.poses,
+                              estimator)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 if not self.context.ok():
                     return        # shutting down: the frame in hand is abandoned
@@ -403,17 +405,16 @@ class BBPoseNode(LifecycleNode):
                 dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
             self.stats.count('answered')
 
-    def _publish(self, frame, camera, poses, estimator):
+    def _publish(self, header, image_rgb, camera, poses, estimator):
         """Poses first, then the markers that mark the frame answered, then the debug image."""
-        stamped, markers = conversions.frame_messages(frame.header, poses, estimator.markers)
+        stamped, markers = conversions.frame_messages(header, poses, estimator.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(
-                frame.header, draw_estimates(frame.image_rgb, camera,
-                                             estimator.pipeline.models, poses)))
+                header, draw_estimates(image_rgb, camera, estimator.pipeline.models, poses)))
 
     def _drop_unpaired(self, frame, reason):
         offset_s = self._pairer.nearest_offset_s(conversions.stamp_to_ns(frame.header.stamp))

@@ -197,7 +197,8 @@ PARAMETERS = {
         'negative: pair every image with the latest camera_info.', 'frame',
         float_range=(-1.0, 10.0)),
     'rectified': ParameterSpec(
-        False, 'True when the images are rectified: use CameraInfo P[:3, :3], otherwise K.',
+        False, 'True when the images are rectified: use CameraInfo P[:3, :3]; false: K, and '
+        'a distorted image (plumb_bob, rational_polynomial, equidistant D) is rectified.',
         'frame'),
     'publish_debug_image': ParameterSpec(
         True, 'Draw and publish ~/debug_image (only while it has subscribers).', 'frame'),

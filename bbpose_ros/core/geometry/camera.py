@@ -12,18 +12,15 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Pinhole camera intrinsics and projection (no distortion model beyond refusing it)."""
+"""Pinhole camera intrinsics and projection (CameraInfo is read by ``camera_info``)."""
 
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import Self
 
 import numpy as np
 import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
-
-# How far (pixels, any element) P[:3, :3] may be from K where the two must agree.
-PK_TOLERANCE_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -115,58 +112,3 @@ class CameraIntrinsics:
     def normalized(self, uv: npt.ArrayLike) -> np.ndarray:
         """Map (..., 2) pixels (u, v) to normalised image coordinates ((u-cx)/fx, (v-cy)/fy)."""
         return (np.asarray(uv, dtype=float) - (self.cx, self.cy)) / (self.fx, self.fy)
-
-
-def intrinsics_from_camera_info(info: Any, width: int, height: int,
-                                rectified: bool = False) -> CameraIntrinsics:
-    """
-    Make the CameraIntrinsics of a sensor_msgs/CameraInfo for a width x height image.
-
-    ``info`` is any object with CameraInfo's fields ``k`` (9), ``p`` (12), ``d``, ``r``
-    (9), ``width`` and ``height`` (a message, or a rosbags message), so the core needs no
-    ROS import. Rectified images use P[:3, :3], others K. When the image size differs from
-    the CameraInfo's by a common factor (a resized stream), the intrinsics are scaled to the
-    image. Every problem is an InputError naming the field: a matrix all zero, not finite or
-    with a focal length <= 0; P[:3, :3] and K more than PK_TOLERANCE_PX apart where they
-    must agree (no distortion, no rectifying rotation); sizes of another aspect ratio.
-    """
-    k = _matrix(info.k, 'k', 3, 3)
-    p = _matrix(info.p, 'p', 3, 4)[:, :3]
-    name, matrix = ('p', p) if rectified else ('k', k)
-    if not np.any(matrix):
-        raise InputError(f'camera_info field {name} is all zero')
-    if matrix[0, 0] <= 0.0 or matrix[1, 1] <= 0.0:
-        raise InputError(f'camera_info field {name}: focal lengths fx={matrix[0, 0]}, '
-                         f'fy={matrix[1, 1]} must be positive')
-    if np.any(p) and not np.any(info.d) and _no_rotation(info.r) and \
-            np.abs(p - k).max() > PK_TOLERANCE_PX:
-        raise InputError(f'camera_info fields k and p disagree (P[:3, :3] - K up to '
-                         f'{np.abs(p - k).max():.2f} px) though d is zero and r the identity: '
-                         f'which one describes the image is unknown')
-    camera = CameraIntrinsics.from_k(matrix, info.width or width, info.height or height)
-    if (camera.width, camera.height) != (width, height):
-        scale_x, scale_y = width / camera.width, height / camera.height
-        if abs(scale_x - scale_y) > 1.0 / min(camera.width, camera.height):
-            raise InputError(f'image of {width}x{height} pixels, but camera_info fields width, '
-                             f'height say {camera.width}x{camera.height} (another aspect '
-                             f'ratio, not a resized stream)')
-        camera = camera.scaled(width, height)
-    return camera
-
-
-def _matrix(values, name, rows, cols):
-    """Return a CameraInfo matrix field as a (rows, cols) array; InputError if malformed."""
-    matrix = np.asarray(values, dtype=float)
-    if matrix.size != rows * cols:
-        raise InputError(f'camera_info field {name} holds {matrix.size} numbers, not '
-                         f'{rows * cols}')
-    if not np.all(np.isfinite(matrix)):
-        bad = sorted({str(v) for v in matrix.ravel() if not np.isfinite(v)})
-        raise InputError(f'camera_info field {name} holds {" and ".join(bad)}')
-    return matrix.reshape(rows, cols)
-
-
-def _no_rotation(r):
-    """Return whether a CameraInfo R (9 numbers; all zero when unset) rotates nothing."""
-    r = np.asarray(r, dtype=float).reshape(3, 3)
-    return not np.any(r) or np.allclose(r, np.eye(3), atol=1e-9)
