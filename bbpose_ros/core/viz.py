@@ -88,7 +88,8 @@ def draw_estimates(image_rgb: npt.ArrayLike, camera: CameraIntrinsics,
     """
     Draw each PoseEstimate on a copy of the frame: 2D box, projected 3D box and label.
 
-    ``models`` maps object names to ObjectModel; the label is the name and the score.
+    ``models`` maps object names to ObjectModel; the label is the name and the confidence
+    (the refinement score when refined, else the detector's).
     """
     canvas = np.array(image_rgb, dtype=np.uint8, copy=True)
     for pose in poses:
@@ -97,7 +98,7 @@ def draw_estimates(image_rgb: npt.ArrayLike, camera: CameraIntrinsics,
         box_uv = pose.detection.box_uv
         draw_box_2d(canvas, box_uv, color)
         draw_box_3d(canvas, camera, model, pose.rotation, pose.translation, color)
-        draw_label(canvas, f'{pose.object_name} {pose.detection.score:.2f}', box_uv, color)
+        draw_label(canvas, f'{pose.object_name} {pose.confidence:.2f}', box_uv, color)
     return canvas
 
 

@@ -102,8 +102,9 @@ class MarkerArrayBuilder:
 
     DELETEALL first, then per pose a LINE_LIST of the 12 edges of the object's 3D box
     (24 points in the model frame, the marker posed at the estimate) and a
-    TEXT_VIEW_FACING label "name score"; ns is the object name, ids count the instances
-    of that object (box 2k, label 2k + 1), the colour is fixed per object. The points and
+    TEXT_VIEW_FACING label "name confidence" (``PoseEstimate.confidence``); ns is the object
+    name, ids count the instances of that object (box 2k, label 2k + 1), the colour is
+    fixed per object. The points and
     colours of each object are made once, here.
 
     Args:
@@ -136,7 +137,7 @@ class MarkerArrayBuilder:
             box = Marker(id=2 * k, type=Marker.LINE_LIST, points=self._points[name], **common)
             box.scale.x = BOX_LINE_WIDTH_M
             label = Marker(id=2 * k + 1, type=Marker.TEXT_VIEW_FACING,
-                           text=f'{name} {pose.detection.score:.2f}', **common)
+                           text=f'{name} {pose.confidence:.2f}', **common)
             label.scale.z = LABEL_HEIGHT_M
             markers += [box, label]
         return MarkerArray(markers=markers)
