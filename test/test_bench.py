@@ -21,7 +21,8 @@ import sys
 
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files
 
-from bbpose_ros.core.eval.benchmark import ProcessSample, STAGES, summarize_graph
+from bbpose_ros.core.eval.benchmark import ProcessSample, rss_settle_s, STAGES
+from bbpose_ros.core.eval.benchmark import summarize_graph
 
 STATS = {'median_ms', 'p95_ms', 'max_ms'}
 
@@ -72,6 +73,10 @@ def test_graph_bench_answers_and_writes_every_key(lmo_root, tmp_path):
     assert node['rss_start_mb'] > 0 and node['rss_end_mb'] > 0 and node['cpu_percent'] >= 0
     assert len(node['rss_trace_mb']) == 2                 # frames 0 and 4 of 8 at 4 Hz
     assert node['rss_settled_mb'] is None                # a 2 s run never settles
+    assert node['rss_settled_at_s'] == 10.0
+    assert [m['minute'] for m in report['per_minute']] == [1]
+    assert report['per_minute'][0]['published'] == 8
+    assert report['latency_p95_drift_percent'] is None   # no full minute
     assert isinstance(node['counts'], dict)
 
 
@@ -85,3 +90,27 @@ def test_rss_after_settling_tells_a_step_from_a_climb():
         assert abs(node['rss_growth_percent'] - 10.5) < 1e-9
         assert abs(node['rss_growth_after_settle_percent'] - after) < 1e-9
         assert node['cpu_percent'] == 50.0
+
+
+def test_a_soak_reports_per_minute_and_its_drift():
+    rate_hz, minutes = 2.0, 3
+    latencies = [{'end_to_end': 10.0, 'answer': 10.0 + minute}      # p95 10, 11, 12 ms
+                 for minute in range(minutes) for _ in range(int(60 * rate_hz))]
+    latencies[5] = {}                                                 # one frame dropped
+    trace = [(float(s), 400.0 + s / 60) for s in range(0, 180, 1)]   # +1 MB a minute
+    start, end = ProcessSample(0.0, 0.0, 400.0), ProcessSample(180.0, 90.0, 403.0)
+    report = summarize_graph(latencies, len(latencies), start, end, {}, trace,
+                             rate_hz=rate_hz, settle_s=rss_settle_s(180.0))
+    per_minute = report['per_minute']
+    assert [(m['minute'], m['published'], m['answered']) for m in per_minute] == [
+        (1, 120, 119), (2, 120, 120), (3, 120, 120)]
+    assert [m['answer_latency_p95_ms'] for m in per_minute] == [10.0, 11.0, 12.0]
+    assert abs(per_minute[1]['rss_mb'] - (400.0 + 119 / 60)) < 1e-9   # the minute's last
+    assert abs(report['latency_p95_drift_percent'] - 20.0) < 1e-9
+    node = report['node']
+    assert node['rss_settled_at_s'] == 60.0 and node['rss_settled_mb'] == 401.0
+    assert abs(node['rss_growth_after_settle_percent'] - 100 * 2 / 401) < 1e-9
+    budgets = report['budgets']
+    assert budgets['rss_growth_after_settle_percent']['met']
+    assert not budgets['latency_p95_drift_percent']['met']
+    assert not budgets['frames_dropped']['met']

@@ -96,6 +96,16 @@ def test_throttle_is_per_key():
     assert throttle.allow('encoding')
 
 
+def test_throttle_forgets_expired_keys_beyond_its_bound():
+    now = [0.0]
+    throttle = KeyedThrottle(period_s=5.0, clock=lambda: now[0], max_keys=10)
+    for k in range(100):                  # ever-different messages, one a second
+        now[0] = float(k)
+        assert throttle.allow(f'data has {k} bytes')
+    assert len(throttle) <= 10
+    assert not throttle.allow('data has 99 bytes')     # a live key is kept
+
+
 def test_markers_structure(lmo_models):
     header = Header(frame_id='cam')
     header.stamp.sec, header.stamp.nanosec = 12, 345

@@ -33,7 +33,7 @@ from bbpose_ros.cli.graph.benchmark import camera_messages, run_graph
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.eval.benchmark import benchmark_frames, RSS_SETTLE_S, STAGES
+from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.pipeline.tracking import PoseTracker
@@ -71,7 +71,9 @@ def add_parser(subparsers):
     parser.add_argument('--rate', type=float, default=30.0,
                         help='--graph: frames per second (default %(default)s)')
     parser.add_argument('--duration', type=float, default=60.0,
-                        help='--graph: seconds of publishing (default %(default)s)')
+                        help='--graph: seconds of publishing (default %(default)s); from 120 s '
+                             'on, a soak: per-minute latency and RSS, RSS growth after the '
+                             'first minute, p95 drift')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
                         help='parameters file of the node (default %(default)s)')
     parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
@@ -118,7 +120,8 @@ def bench_graph(args, frames, values, overrides):
                       args.rate, args.duration)
     report = summarize_graph(latencies_ms(graph.recording), len(graph.recording.published_s),
                              graph.node_start, graph.node_end, graph.node_counts,
-                             graph.node_rss_trace)
+                             graph.node_rss_trace, rate_hz=args.rate,
+                             settle_s=rss_settle_s(args.duration))
     report.update(rate_hz=args.rate, duration_s=args.duration,
                   node_timings_ms=graph.recording.timings_ms)
     return report
@@ -157,8 +160,15 @@ def format_graph(report):
              f'node: CPU {node["cpu_percent"]:.0f} %, RSS {node["rss_start_mb"]:.0f} -> '
              f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_percent"]:+.1f} %)'
              + ('' if node['rss_settled_mb'] is None else
-                f'; from {RSS_SETTLE_S:.0f} s on {node["rss_settled_mb"]:.0f} -> '
+                f'; from {node["rss_settled_at_s"]:.0f} s on {node["rss_settled_mb"]:.0f} -> '
                 f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_after_settle_percent"]:+.1f} %)')]
+    if len(report['per_minute']) > 1:
+        lines.append(f'{"minute":>6s}{"published":>11s}{"answered":>10s}{"median ms":>11s}'
+                     f'{"p95 ms":>9s}{"RSS MB":>9s}')
+        lines += [f'{m["minute"]:>6d}{m["published"]:>11d}{m["answered"]:>10d}'
+                  f'{_number(m["answer_latency_median_ms"], 11, 2)}'
+                  f'{_number(m["answer_latency_p95_ms"], 9, 2)}{_number(m["rss_mb"], 9, 1)}'
+                  for m in report['per_minute']]
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 
@@ -181,6 +191,10 @@ def run(args):
         write_json_atomic(args.json, report)
         print(f'report written to {args.json}')
     return 0
+
+
+def _number(value, width, decimals):
+    return f'{"-":>{width}s}' if value is None else f'{value:>{width}.{decimals}f}'
 
 
 def _cells(stats, first=9):

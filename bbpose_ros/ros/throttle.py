@@ -30,15 +30,21 @@ class KeyedThrottle:
     """
     Decides whether a message of a given key may be logged now.
 
+    Keys are forgotten once their period is over and more than ``max_keys`` are held, so
+    a stream of ever-different problems (keys often hold the bad value) cannot grow it
+    without bound.
+
     Args:
         period_s: least time between two messages of the same key, seconds.
         clock: monotonic clock in seconds (replaceable in tests).
+        max_keys: how many keys are held before expired ones are forgotten.
 
     """
 
     def __init__(self, period_s: float = 5.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, max_keys: int = 256) -> None:
         self.period_s = period_s
+        self.max_keys = max_keys
         self._clock = clock
         self._last = {}
         self._lock = threading.Lock()
@@ -49,5 +55,11 @@ class KeyedThrottle:
         with self._lock:
             if now - self._last.get(key, -float('inf')) < self.period_s:
                 return False
+            if len(self._last) >= self.max_keys:
+                self._last = {k: t for k, t in self._last.items() if now - t < self.period_s}
             self._last[key] = now
             return True
+
+    def __len__(self) -> int:
+        """Return how many keys are held."""
+        return len(self._last)

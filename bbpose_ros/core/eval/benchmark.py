@@ -84,8 +84,13 @@ REFINED_FRAME_BUDGETS = {
 }
 GRAPH_LATENCY_P95_MS = 40.0
 GRAPH_RSS_GROWTH_PERCENT = 5.0
-# Seconds into a graph run after which the node's RSS counts as settled (see summarize_graph).
+# A soak (a graph run of two minutes or more) also bounds how much the per-minute answer
+# latency p95 may drift from the first full minute to the last.
+SOAK_LATENCY_P95_DRIFT_PERCENT = 10.0
+# Seconds into a graph run after which the node's RSS counts as settled (see rss_settle_s):
+# a soak settles after its first minute, a shorter run after RSS_SETTLE_S.
 RSS_SETTLE_S = 10.0
+SOAK_SETTLE_S = 60.0
 _CLOCK_TICKS_PER_S = os.sysconf('SC_CLK_TCK')     # unit of /proc/<pid>/stat CPU times
 
 
@@ -174,10 +179,17 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
     return report
 
 
+def rss_settle_s(duration_s: float) -> float:
+    """Seconds into a graph run of ``duration_s`` after which the node's RSS counts as settled."""
+    return SOAK_SETTLE_S if duration_s >= 2 * SOAK_SETTLE_S else RSS_SETTLE_S
+
+
 def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
                     node_start: ProcessSample, node_end: ProcessSample,
                     node_counts: Mapping[str, int],
-                    rss_trace: Sequence[tuple[float, float]] = ()) -> dict[str, Any]:
+                    rss_trace: Sequence[tuple[float, float]] = (),
+                    rate_hz: float | None = None,
+                    settle_s: float = RSS_SETTLE_S) -> dict[str, Any]:
     """
     Make the report of a fixed-rate run through the ROS graph.
 
@@ -189,22 +201,31 @@ def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
         node_start, node_end: ProcessSamples of the node at the first and last publication.
         node_counts: {counter: frames} the node counted during the run.
         rss_trace: [(seconds since the first publication, node RSS in MB)].
+        rate_hz: the publication rate; frame k went out k / rate_hz s into the run. Given,
+            the report has per-minute figures.
+        settle_s: seconds into the run after which the RSS counts as settled
+            (``rss_settle_s``).
 
     Returns:
         {'latency', 'answer_latency': latency_stats, 'latency_drift_ms' (median answer
         latency of the last third of the frames minus the first third's), 'frames':
         {'published', 'answered', 'dropped', 'with_poses'}, 'node': {'cpu_percent',
-        'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'rss_settled_mb' (the first
-        sample RSS_SETTLE_S into the run; None in a shorter run),
-        'rss_growth_after_settle_percent', 'rss_trace_mb', 'counts'}, 'budgets'}. The budget
-        is on 'rss_growth_percent'; the settled figures tell a one-off step in the first
-        seconds from a steady climb.
+        'rss_start_mb', 'rss_end_mb', 'rss_growth_percent', 'rss_settled_at_s',
+        'rss_settled_mb' (the first sample settle_s into the run; None in a shorter run),
+        'rss_growth_after_settle_percent', 'rss_trace_mb', 'counts'}, 'per_minute' (with
+        rate_hz: per minute of publication {'minute', 'published', 'answered',
+        'answer_latency_median_ms', 'answer_latency_p95_ms', 'rss_mb' (the last sample of
+        the minute)}), 'latency_p95_drift_percent' (the answer p95 of the last full minute
+        against the first's, in %; None with fewer than two full minutes), 'budgets'}.
+        The budgets are on the answer p95, the frames dropped and 'rss_growth_percent',
+        and, where known, on the growth after settling and the p95 drift; the settled
+        figures tell a one-off step in the first seconds from a steady climb.
 
     """
     answers = [frame['answer'] for frame in latencies if 'answer' in frame]
     third = len(answers) // 3
     growth = 100.0 * (node_end.rss_mb - node_start.rss_mb) / node_start.rss_mb
-    settled = next((mb for seconds, mb in rss_trace if seconds >= RSS_SETTLE_S), None)
+    settled = next((mb for seconds, mb in rss_trace if seconds >= settle_s), None)
     report = {
         'latency': latency_stats([f['end_to_end'] for f in latencies if 'end_to_end' in f]),
         'answer_latency': latency_stats(answers),
@@ -215,17 +236,46 @@ def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
                    'with_poses': sum('end_to_end' in f for f in latencies)},
         'node': {'cpu_percent': cpu_percent(node_start, node_end),
                  'rss_start_mb': node_start.rss_mb, 'rss_end_mb': node_end.rss_mb,
-                 'rss_growth_percent': growth, 'rss_settled_mb': settled,
+                 'rss_growth_percent': growth, 'rss_settled_at_s': settle_s,
+                 'rss_settled_mb': settled,
                  'rss_growth_after_settle_percent':
                      None if settled is None else 100.0 * (node_end.rss_mb - settled) / settled,
                  'rss_trace_mb': [[round(s, 2), round(mb, 1)] for s, mb in rss_trace],
                  'counts': dict(node_counts)}}
+    report['per_minute'], report['latency_p95_drift_percent'] = (
+        _per_minute(latencies, rss_trace, rate_hz) if rate_hz else ([], None))
     report['budgets'] = {
         'answer_latency_p95': budget(report['answer_latency']['p95_ms'],
                                      GRAPH_LATENCY_P95_MS),
         'frames_dropped': budget(report['frames']['dropped'], 0),
         'rss_growth_percent': budget(growth, GRAPH_RSS_GROWTH_PERCENT)}
+    soak = {'rss_growth_after_settle_percent': (report['node']['rss_growth_after_settle_percent'],
+                                                GRAPH_RSS_GROWTH_PERCENT),
+            'latency_p95_drift_percent': (report['latency_p95_drift_percent'],
+                                          SOAK_LATENCY_P95_DRIFT_PERCENT)}
+    report['budgets'].update((name, budget(value, limit))
+                             for name, (value, limit) in soak.items() if value is not None)
     return report
+
+
+def _per_minute(latencies, rss_trace, rate_hz):
+    """Per-minute figures of a fixed-rate run and the p95 drift of its full minutes."""
+    per_minute_frames = int(round(60.0 * rate_hz))
+    minutes, full = [], []
+    for start in range(0, len(latencies), per_minute_frames):
+        frames = latencies[start:start + per_minute_frames]
+        answers = latency_stats([f['answer'] for f in frames if 'answer' in f])
+        minute = len(minutes) + 1
+        rss = [mb for seconds, mb in rss_trace if minute - 1 <= seconds / 60.0 < minute]
+        minutes.append({'minute': minute, 'published': len(frames),
+                        'answered': sum('answer' in f for f in frames),
+                        'answer_latency_median_ms': answers['median_ms'],
+                        'answer_latency_p95_ms': answers['p95_ms'],
+                        'rss_mb': rss[-1] if rss else None})
+        if len(frames) == per_minute_frames and answers['p95_ms'] is not None:
+            full.append(answers['p95_ms'])
+    drift = 100.0 * (full[-1] - full[0]) / full[0] if len(full) >= 2 else None
+    return minutes, drift
 
 
 def budget(value: float | None, limit: float) -> dict[str, Any]:
