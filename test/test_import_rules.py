@@ -75,7 +75,7 @@ def _in(name, prefix):
 
 def test_the_scan_sees_the_package():
     assert 'bbpose_ros.ros.node' in MODULES
-    assert 'bbpose_ros.core.pipeline.estimators' in _internal(MODULES['bbpose_ros.ros.node'])
+    assert 'bbpose_ros.core.pipeline.estimators' in _internal(MODULES['bbpose_ros.ros.estimator'])
     assert len(MODULES) >= 60
 
 

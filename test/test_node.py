@@ -40,7 +40,7 @@ from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES, load_pose_refiner
+from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
 from bbpose_ros.ros.conversions import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 from bbpose_ros.ros.params import LMO_OBJECTS
@@ -148,8 +148,7 @@ def test_every_bag_frame_answered_like_the_offline_pipeline(graph, bag, lmo_mode
 
     frames = read_bag_frames(bag)
     # The node's defaults: refinement of each detection's 2 best hypotheses.
-    pipeline = load_pipeline(lmo_models, *weights, score_threshold=0.0,
-                             refiner=load_pose_refiner(lmo_models, progress=False),
+    pipeline = load_pipeline(lmo_models, *weights, score_threshold=0.0, refine=True,
                              refine_hypotheses=DEFAULT_REFINE_HYPOTHESES)
     poses = {name: client.received[f'{OUT}/{name}/pose'] for name in LMO_OBJECTS}
     for frame in frames:

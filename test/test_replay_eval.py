@@ -25,7 +25,7 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES, load_pose_refiner
+from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
 
 FRAMES = 3
 
@@ -60,8 +60,7 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert 'tracking on: ADD(-S)' in result.stdout
 
     offline = evaluate(frames, load_pipeline(lmo_models, *weights, score_threshold=0.0,
-                                             refiner=load_pose_refiner(lmo_models,
-                                                                       progress=False),
+                                             refine=True,
                                              refine_hypotheses=DEFAULT_REFINE_HYPOTHESES),
                        boxes='detector', rotation='estimator', progress=False)
     for name, values in offline['objects'].items():

@@ -14,6 +14,8 @@
 
 """The ROS adapter's parts without a graph: pairing, throttling, conversions, parameters."""
 
+import dataclasses
+import inspect
 from pathlib import Path
 import re
 import threading
@@ -31,12 +33,15 @@ import yaml
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
+from bbpose_ros.core.pipeline.tracking import TrackingConfig
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import check_value, declare_parameters, PARAMETERS
+from bbpose_ros.ros.params import APPLIES, check_value, declare_parameters, PARAMETERS
 from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
+from bbpose_ros.ros.params import TRACKING_OPTIONS
 from bbpose_ros.ros.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
@@ -227,3 +232,13 @@ def test_stamp_checker_tells_repeated_backward_and_future_stamps():
     assert checker.check(now + SECOND, now) is None         # within the tolerance
     kind, text = checker.check(now + 5 * SECOND, now)
     assert kind == FUTURE and '5.000 s ahead' in text
+
+
+def test_pipeline_parameters_are_load_pipeline_keywords():
+    keywords = set(inspect.signature(load_pipeline).parameters)
+    pipeline = {name for name, spec in PARAMETERS.items() if spec.applies == 'pipeline'}
+    assert pipeline - {'objects'} - set(TRACKING_OPTIONS) <= keywords
+    # The tracking ones are TrackingConfig's fields.
+    fields = {f.name for f in dataclasses.fields(TrackingConfig)}
+    assert {o for o in TRACKING_OPTIONS.values() if o is not None} <= fields
+    assert {spec.applies for spec in PARAMETERS.values()} <= set(APPLIES)

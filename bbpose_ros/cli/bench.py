@@ -38,7 +38,7 @@ from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros import conversions
-from bbpose_ros.ros.node import build_estimator
+from bbpose_ros.ros.estimator import build_estimator
 from bbpose_ros.ros.params import read_config, read_params_file
 
 

@@ -73,16 +73,15 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def build_pipeline(models, boxes, rotation, detector_weights=None, qnet_weights=None,
-                   box_consistency_weight=DEFAULT_BOX_CONSISTENCY_WEIGHT, refiner=None,
-                   refine_hypotheses=1):
+def build_pipeline(models, args):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
-    if boxes == 'gt' and rotation == 'gt':
-        return PosePipeline(models, refiner=refiner)
+    if args.boxes == 'gt' and args.rotation == 'gt':
+        return PosePipeline(models, refiner=load_refiner(args, models))
     from bbpose_ros.core.pipeline.estimators import load_pipeline
-    return load_pipeline(models, detector_weights, qnet_weights,
-                         box_consistency_weight=box_consistency_weight, refiner=refiner,
-                         refine_hypotheses=refine_hypotheses)
+    return load_pipeline(models, args.detector_weights, args.qnet_weights,
+                         box_consistency_weight=args.box_consistency_weight,
+                         refine=args.refine, refine_hypotheses=args.refine_hypotheses,
+                         refine_min_score=args.refine_min_score)
 
 
 class RecordingDetector:
@@ -117,9 +116,7 @@ def run(args):
     levels = args.perturb_gt or [None]
     if args.perturb_gt is not None and (args.boxes != 'gt' or args.rotation != 'gt'):
         raise InputError('--perturb-gt needs --boxes gt --rotation gt')
-    pipeline = build_pipeline(models, args.boxes, args.rotation, args.detector_weights,
-                              args.qnet_weights, args.box_consistency_weight,
-                              load_refiner(args, models), args.refine_hypotheses)
+    pipeline = build_pipeline(models, args)
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)

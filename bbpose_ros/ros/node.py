@@ -36,8 +36,8 @@ The subscription callbacks only decode and pair; a worker thread runs the pipeli
 newest pair, so frames arriving while it is busy replace each other instead of queueing.
 """
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import dataclass
 import threading
 import time
 from typing import Any
@@ -57,18 +57,14 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
-from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
-from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
-from bbpose_ros.core.pipeline.refinement import load_pose_refiner
-from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
+from bbpose_ros.ros.estimator import build_estimator
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME, NodeConfig
+from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME
 from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
 from bbpose_ros.ros.stamps import REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
@@ -90,55 +86,6 @@ class Frame:
     header: Header
     image_rgb: np.ndarray
     received_s: float
-
-
-@dataclass(frozen=True)
-class Estimator:
-    """
-    A pipeline and the MarkerArrayBuilder of its objects: the worker takes both at once.
-
-    ``pipeline`` is a PosePipeline, or a PoseTracker around one (same ``estimate`` and
-    ``models``).
-    """
-
-    pipeline: PosePipeline | PoseTracker
-    markers: conversions.MarkerArrayBuilder
-
-
-def build_estimator(config: NodeConfig,
-                    log: Callable[[str], None] | None = None) -> Estimator:
-    """
-    Build the Estimator of a NodeConfig: meshes from dataset_dir, learned stages, refiner.
-
-    ``log`` gets a line for each viewpoint model built (once per mesh, then cached). With
-    ``tracking`` the Estimator's pipeline is a PoseTracker around the PosePipeline.
-    """
-    try:
-        models = load_bop_models(config.dataset_dir, list(config.objects))
-    except InputError as err:
-        raise InputError(f'parameter objects / dataset_dir: loading the objects from '
-                         f'{config.dataset_dir}: {err}') from err
-    refiner = None
-    if config.refine:
-        refiner = load_pose_refiner(models, min_score=config.refine_min_score,
-                                    progress=False, log=log)
-    try:
-        pipeline = load_pipeline(models, detector_weights=config.detector_weights,
-                                 qnet_weights=config.qnet_weights,
-                                 score_threshold=config.score_threshold,
-                                 max_instances=config.max_instances,
-                                 box_consistency_weight=config.box_consistency_weight,
-                                 backend=config.inference_backend, device=config.device,
-                                 threads=config.inference_threads or None, refiner=refiner,
-                                 refine_hypotheses=config.refine_hypotheses)
-    except InputError as err:
-        raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
-                         f'files): {err}') from err
-    if config.tracking:
-        pipeline = PoseTracker(pipeline, TrackingConfig(
-            redetect_every=config.tracking_redetect_every,
-            min_track_score=config.tracking_min_score))
-    return Estimator(pipeline, conversions.MarkerArrayBuilder(models))
 
 
 class BBPoseNode(LifecycleNode):
@@ -170,8 +117,8 @@ class BBPoseNode(LifecycleNode):
         try:
             config = read_config(parameter_values(self))
             self.estimator = build_estimator(config, self.get_logger().info)
-        except InputError as err:
-            return self._fail('configure', err)
+        except Exception as err:  # noqa: B902 - a failed configure says why, whatever failed
+            return self._fail('configure', _reason(err))
         self.config, self.failure = config, None
         self.get_logger().info(f'configured: {", ".join(config.objects)}')
         return SUCCESS
@@ -270,9 +217,10 @@ class BBPoseNode(LifecycleNode):
         if changes and self.config is not None:
             try:
                 self._rebuild(changes)
-            except InputError as err:
-                self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
-                return SetParametersResult(successful=False, reason=str(err))
+            except Exception as err:  # noqa: B902 - a failed rebuild refuses the set, says why
+                self._warn('parameters_refused', ' '.join(changes),
+                           f'set refused: {_reason(err)}')
+                return SetParametersResult(successful=False, reason=_reason(err))
         return SetParametersResult(successful=True)
 
     def _refusal(self, parameter):
@@ -293,8 +241,7 @@ class BBPoseNode(LifecycleNode):
 
     def _rebuild(self, changes):
         """Build the pipeline with ``changes`` ({name: value}) and swap it in."""
-        config = replace(self.config, **{name: tuple(value) if isinstance(value, list)
-                                         else value for name, value in changes.items()})
+        config = self.config.updated(changes)
         estimator = build_estimator(config, self.get_logger().info)
         if self._serving:
             for name in config.objects:
@@ -444,6 +391,11 @@ class BBPoseNode(LifecycleNode):
 
     def _topic(self, name):
         return self.resolve_topic_name(name)
+
+
+def _reason(err):
+    """Return an exception as a reason: an InputError's message names the problem already."""
+    return str(err) if isinstance(err, InputError) else f'{type(err).__name__}: {err}'
 
 
 def _stamp_text(header):

@@ -20,7 +20,8 @@ Each parameter says when the node reads it (``ParameterSpec.applies``):
 * ``start``: once, when the process starts (read-only);
 * ``configure``: by the configure transition; settable while the node is unconfigured;
 * ``pipeline``: shapes the pipeline; a run-time set rebuilds it (the set fails, with the
-  reason, if the rebuild does) and the node keeps serving meanwhile;
+  reason, if the rebuild does) and the node keeps serving meanwhile. Each but ``objects``
+  is passed to ``load_pipeline`` as the keyword of its name;
 * ``frame``: read for every frame; settable at any time.
 
 A value is checked by ``check_value`` (type, range, then the parameter's own check), both
@@ -31,7 +32,7 @@ is one table entry. ``config/bbpose.yaml`` documents each one.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import os
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
@@ -47,6 +48,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.backends import BACKENDS
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
+from bbpose_ros.core.pipeline.tracking import TrackingConfig
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -208,31 +210,57 @@ PARAMETERS = {
 }
 
 
+# The ``pipeline`` parameters that wrap the pipeline in a PoseTracker instead of going to
+# load_pipeline: parameter name -> TrackingConfig field (None: the switch itself).
+TRACKING_OPTIONS = {'tracking': None, 'tracking_redetect_every': 'redetect_every',
+                    'tracking_min_score': 'min_track_score'}
+
 @dataclass(frozen=True)
 class NodeConfig:
     """
-    The values the configure transition read, checked; the pipeline is built from them.
+    The parameter values the configure transition read and checked, and what they resolve to.
 
-    Paths are resolved; a weights path is None where the shipped file applies.
+    Attributes:
+        values: {name: value} of every parameter of PARAMETERS.
+        dataset_dir: the dataset folder ``dataset_dir`` resolves to.
+        detector_weights, qnet_weights: the weight files; None where the shipped one applies.
+        qos: the input subscriptions' QoS (``qos_reliability``, ``qos_depth``).
+
     """
 
-    objects: tuple[str, ...]
+    values: dict[str, Any]
     dataset_dir: Path
     detector_weights: Path | None
     qnet_weights: Path | None
-    score_threshold: float
-    max_instances: int
-    box_consistency_weight: float
-    refine: bool
-    refine_hypotheses: int
-    refine_min_score: float
-    tracking: bool
-    tracking_redetect_every: int
-    tracking_min_score: float
-    inference_backend: str
-    device: str
-    inference_threads: int
     qos: QoSProfile
+
+    @property
+    def objects(self) -> tuple[str, ...]:
+        """Return the names of the objects to report."""
+        return tuple(self.values['objects'])
+
+    def pipeline_options(self) -> dict[str, Any]:
+        """
+        Return {name: value} of the ``pipeline`` parameters but ``objects`` and tracking's.
+
+        Each is the ``load_pipeline`` keyword of the same name, so a new switch of the
+        pipeline is one entry of PARAMETERS.
+        """
+        return {name: self.values[name] for name, spec in PARAMETERS.items()
+                if spec.applies == 'pipeline' and name != 'objects'
+                and name not in TRACKING_OPTIONS}
+
+    def tracking_config(self) -> TrackingConfig | None:
+        """Return the TrackingConfig of the ``tracking`` parameters, None when it is off."""
+        if not self.values['tracking']:
+            return None
+        return TrackingConfig(**{option: self.values[name]
+                                 for name, option in TRACKING_OPTIONS.items()
+                                 if option is not None})
+
+    def updated(self, changes: dict[str, Any]) -> NodeConfig:
+        """Return this config with ``changes`` ({name: value}, ``pipeline`` ones) applied."""
+        return replace(self, values={**self.values, **changes})
 
 
 def declare_parameters(node: Node) -> None:
@@ -281,19 +309,10 @@ def read_config(values: dict[str, Any]) -> NodeConfig:
                          f'{values["inference_backend"]} runs on the CPU only; use '
                          f'inference_backend torch for device {values["device"]}')
     return NodeConfig(
-        objects=tuple(values['objects']),
-        dataset_dir=resolve_dataset_dir(values['dataset_dir']),
+        values=dict(values), dataset_dir=resolve_dataset_dir(values['dataset_dir']),
         detector_weights=Path(values['detector_weights']) if values['detector_weights']
         else None,
         qnet_weights=Path(values['qnet_weights']) if values['qnet_weights'] else None,
-        score_threshold=values['score_threshold'], max_instances=values['max_instances'],
-        box_consistency_weight=values['box_consistency_weight'],
-        refine=values['refine'], refine_hypotheses=values['refine_hypotheses'],
-        refine_min_score=values['refine_min_score'], tracking=values['tracking'],
-        tracking_redetect_every=values['tracking_redetect_every'],
-        tracking_min_score=values['tracking_min_score'],
-        inference_backend=values['inference_backend'], device=values['device'],
-        inference_threads=values['inference_threads'],
         qos=QoSProfile(depth=values['qos_depth'],
                        reliability=RELIABILITY[values['qos_reliability']]))
 

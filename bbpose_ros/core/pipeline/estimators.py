@@ -25,7 +25,7 @@ The learned stages as pipeline callables, and ``load_pipeline`` that wires them 
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 import copy
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -47,12 +47,12 @@ from bbpose_ros.core.pipeline.backends import make_runner
 from bbpose_ros.core.pipeline.hypotheses import (DEFAULT_BOX_CONSISTENCY_WEIGHT,
                                                  HypothesisSelector, RotationHypotheses)
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PosePipeline
+from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
                                               load_network)
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
-    from bbpose_ros.core.pipeline.refinement import PoseRefiner
 
 # Largest Q-Net batch run at load time (see QNetRotationEstimator.warm_up).
 MAX_WARM_UP_BATCH = 16
@@ -249,8 +249,9 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
                   max_instances: int = 1, backend: str = 'onnxruntime',
                   device: str | torch.device = 'cpu', threads: int | None = None,
                   box_consistency_weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT,
-                  refiner: PoseRefiner | None = None, refine_hypotheses: int = 1
-                  ) -> PosePipeline:
+                  refine: bool = False, refine_hypotheses: int = 1,
+                  refine_min_score: float = 0.0,
+                  refiner_log: Callable[[str], None] | None = None) -> PosePipeline:
     """
     Build a PosePipeline with the learned detector and Q-Net.
 
@@ -266,9 +267,12 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
         box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
             Equation's misfit counts in choosing a hypothesis (``hypotheses``); 0: the
             network's best-scored one.
-        refiner: the refinement stage (``refinement.load_pose_refiner``), or None.
-        refine_hypotheses: with a refiner, how many of each detection's best-ranked rotation
-            hypotheses are refined (the best-scored one is kept).
+        refine: add the region-based refinement stage (``refinement.load_pose_refiner``:
+            viewpoint models from the cache, built on first use).
+        refine_hypotheses: with refinement, how many of each detection's best-ranked
+            rotation hypotheses are refined (the best-scored one is kept).
+        refine_min_score: with refinement, drop poses scored below this (0..1).
+        refiner_log: gets a line for each viewpoint model built.
 
     Returns:
         PosePipeline(models, detector, rotation_estimator, hypothesis_selector, refiner).
@@ -296,5 +300,9 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
         all_hypotheses=qnet.config.hypotheses > 1 and selector.weight > 0)
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
+    refiner = None
+    if refine:
+        refiner = load_pose_refiner(models, min_score=refine_min_score, progress=False,
+                                    log=refiner_log)
     return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
                         refiner=refiner, refine_hypotheses=refine_hypotheses)

@@ -1,0 +1,76 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+What the node's worker runs: the pipeline of a NodeConfig and the marker builder of its objects.
+
+Built by the configure transition and again by a run-time set of a ``pipeline`` parameter;
+the worker takes the current Estimator once per frame, so a rebuild swaps both at once.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from bbpose_ros.core.data.models import load_bop_models
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.ros.conversions import MarkerArrayBuilder
+from bbpose_ros.ros.params import NodeConfig
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """
+    A pipeline and the MarkerArrayBuilder of its objects.
+
+    ``pipeline`` is a PosePipeline, or a PoseTracker around one (same ``estimate`` and
+    ``models``).
+    """
+
+    pipeline: PosePipeline | PoseTracker
+    markers: MarkerArrayBuilder
+
+
+def build_estimator(config: NodeConfig,
+                    log: Callable[[str], None] | None = None) -> Estimator:
+    """
+    Build the Estimator of a NodeConfig: meshes, the learned stages, refinement, tracking.
+
+    ``log`` gets a line for each viewpoint model the refiner builds (once per mesh, then
+    cached). With ``tracking`` the pipeline is a PoseTracker around the PosePipeline.
+
+    Raises InputError naming the parameters behind a failure (unknown objects, a weight
+    file that does not fit).
+    """
+    try:
+        models = load_bop_models(config.dataset_dir, list(config.objects))
+    except InputError as err:
+        raise InputError(f'parameter objects / dataset_dir: loading the objects from '
+                         f'{config.dataset_dir}: {err}') from err
+    values = config.values
+    try:
+        pipeline = load_pipeline(models, detector_weights=config.detector_weights,
+                                 qnet_weights=config.qnet_weights,
+                                 backend=values['inference_backend'], device=values['device'],
+                                 threads=values['inference_threads'] or None,
+                                 refiner_log=log, **config.pipeline_options())
+    except InputError as err:
+        raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
+                         f'files): {err}') from err
+    tracking = config.tracking_config()
+    if tracking is not None:
+        pipeline = PoseTracker(pipeline, tracking)
+    return Estimator(pipeline, MarkerArrayBuilder(models))
