@@ -215,6 +215,7 @@ PARAMETERS = {
 TRACKING_OPTIONS = {'tracking': None, 'tracking_redetect_every': 'redetect_every',
                     'tracking_min_score': 'min_track_score'}
 
+
 @dataclass(frozen=True)
 class NodeConfig:
     """
