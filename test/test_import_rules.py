@@ -97,6 +97,9 @@ def test_the_scan_sees_the_package():
                               'bbpose_ros.core.eval', 'bbpose_ros.core.render',
                               'bbpose_ros.core.synth', 'bbpose_ros.core.training')),
     ('bbpose_ros.core.eval', ('bbpose_ros.core.training', 'bbpose_ros.core.synth')),
+    ('bbpose_ros.core.refine', ('bbpose_ros.core.nets', 'bbpose_ros.core.pipeline',
+                                'bbpose_ros.core.eval', 'bbpose_ros.core.render',
+                                'bbpose_ros.core.synth', 'bbpose_ros.core.training')),
 ])
 def test_layers_import_one_way(layer, forbidden):
     assert _violations(layer, forbidden) == []
