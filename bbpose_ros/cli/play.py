@@ -62,7 +62,7 @@ def run(args):
     if args.rate <= 0:
         raise InputError(f'--rate must be positive, got {args.rate}')
     # Python's own SIGINT handling, so Ctrl-C stops the loop with KeyboardInterrupt.
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bbpose_play')
     try:
         player = BagPlayer(node, args.bag)

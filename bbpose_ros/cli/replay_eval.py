@@ -157,7 +157,7 @@ def write_plots(folder, frames, recording, models, scores, per_object):
 def record(args, objects, frame_count, overrides):
     """Run the node with parameter ``overrides``, replay the bag into it; return the Recording."""
     use_large_image_profile()
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bbpose_replay_eval')
     process = NodeProcess(args.params, overrides)
     try:

@@ -169,7 +169,7 @@ def run_graph(pairs, objects, params_file, overrides, rate_hz, duration_s):
 
     """
     use_large_image_profile()
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bbpose_bench')
     process = NodeProcess(params_file, overrides)
     try:
