@@ -103,6 +103,11 @@ def test_viewpoint_cache_round_trip(viewpoint_models, lmo_models, tmp_path):
     broken.write_bytes(b'not a viewpoint model')
     with pytest.raises(InputError, match='broken.npz'):
         ViewpointModel.load(broken)
+    # A cached file cut short (an interrupted copy) is rebuilt, not fatal.
+    cached = next(cache.glob('ape-*.npz'))
+    cached.write_bytes(cached.read_bytes()[:5000])
+    rebuilt = load_viewpoint_models({'ape': lmo_models['ape']}, cache, progress=False)
+    np.testing.assert_array_equal(rebuilt['ape'].points, models['ape'].points)
 
 
 @pytest.mark.parametrize('name,seed', [('driller', 1), ('duck', 2), ('holepuncher', 3)])
@@ -160,6 +165,7 @@ def test_bad_starts_are_reported_not_raised(viewpoint_models, lmo_frames):
     assert behind.status == 'behind_camera' and behind.score == 0.0
     outside = refiner.refine(image, frame.camera, np.eye(3), [5.0, 5.0, 0.8])
     assert outside.status == 'outside_image' and outside.score == 0.0
+    np.testing.assert_array_equal(outside.translation, [5.0, 5.0, 0.8])   # given back
     nan = refiner.refine(image, frame.camera, np.full((3, 3), np.nan), [0.0, 0.0, 0.8])
     assert nan.status == 'behind_camera'
     with pytest.raises(InputError, match='does not match'):

@@ -297,7 +297,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], detector_weights: Path | st
     qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
     rotation = QNetRotationEstimator(
         qnet, backend, device, threads,
-        all_hypotheses=qnet.config.hypotheses > 1 and selector.weight > 0)
+        all_hypotheses=qnet.config.hypotheses > 1 and (
+            selector.weight > 0 or (refine and refine_hypotheses > 1)))
     detector.warm_up()
     rotation.warm_up(min(len(names) * max_instances, MAX_WARM_UP_BATCH))
     refiner = None

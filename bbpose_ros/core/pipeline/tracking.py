@@ -26,13 +26,16 @@ Policy, per frame:
    refinement scores higher; other detections scored at least ``min_track_score`` start
    tracks, the rest are reported for this frame only.
 
-Tracks are per object name (one instance of each object, as the node reports).
+Tracks are per object name: one instance of each object is tracked (with ``max_instances``
+above 1, the other detections of a tracked object are not reported while it is tracked).
+Only objects the refiner has a viewpoint model of are tracked.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -41,6 +44,9 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.pose_pipeline import FrameResult, PoseEstimate, PosePipeline
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
 
 
 @dataclass(frozen=True)
@@ -96,7 +102,7 @@ class PoseTracker:
         self._since_detection = 0
 
     @property
-    def models(self) -> dict:
+    def models(self) -> dict[str, ObjectModel]:
         """Return the pipeline's {name: ObjectModel}: a tracker stands in for its pipeline."""
         return self.pipeline.models
 
@@ -109,8 +115,9 @@ class PoseTracker:
         """Track, detect when the policy says so, and return the frame's poses."""
         start = time.perf_counter()
         timings = {}
+        tracked = bool(self.tracks)
         lost = self._follow_tracks(image_rgb, camera)
-        if self.tracks:
+        if tracked:
             timings['tracking'] = _ms_since(start)
         self._since_detection += 1
         untracked = []
@@ -153,7 +160,8 @@ class PoseTracker:
             if current is not None:
                 if pose.confidence > current.pose.confidence:
                     self.tracks[pose.object_name] = Track(pose)
-            elif pose.confidence >= self.config.min_track_score:
+            elif (pose.confidence >= self.config.min_track_score
+                  and pose.object_name in self.pipeline.refiner.viewpoint_models):
                 self.tracks[pose.object_name] = Track(pose)
             else:
                 untracked.append(pose)

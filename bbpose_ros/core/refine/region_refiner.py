@@ -56,7 +56,7 @@ FUNCTION_SLOPE = 0.5        # its slope, in segments
 LINE_SEGMENTS = FUNCTION_LENGTH + DISTRIBUTION_LENGTH - 1
 MAX_HISTOGRAM_RUN_PX = 20.0     # pixels on either side of the contour that feed the colours
 HISTOGRAM_STRIDE_PX = 2.0       # of which every second one is sampled
-AGREEMENT_PX = 2.0              # a line agrees when its contour lies this close (scale 1)
+AGREEMENT_PX = 1.5              # a line agrees when its contour lies this close (scale 1)
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ class RefinerConfig:
         histogram_rate: after each correspondence iteration the colour histograms move this
             far towards those seen at the current pose (0: keep the initial ones).
         min_continuous_px: a line needs this many pixels of uninterrupted foreground and
-            background on both sides of its contour point (at scale 1).
+            background on both sides of its contour point (in pixels at every scale).
 
     """
 
@@ -97,8 +97,9 @@ class RefinerConfig:
                              f'{self.standard_deviations}')
         if self.iterations < 1 or self.newton_steps < 1:
             raise InputError('refinement needs at least one iteration and one Newton step')
-        if not (self.tikhonov_rotation >= 0 and self.tikhonov_translation >= 0):
-            raise InputError('Tikhonov damping must be >= 0')
+        if not (self.tikhonov_rotation > 0 and self.tikhonov_translation > 0):
+            raise InputError('Tikhonov damping must be > 0 (it keeps every Newton step '
+                             'solvable, also for a pose without lines)')
         if not 0.0 <= self.histogram_rate <= 1.0:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
 
@@ -112,10 +113,12 @@ class Refinement:
         rotation: (3, 3) refined model-to-camera rotation.
         translation: (3,) refined translation, metres.
         score: share of the view's contour lines that agree with the colour model at the
-            end, 0..1: the pose's confidence.
-        status: 'ok', or why the pose was left as given ('behind_camera', 'outside_image',
-            'too_few_lines').
-        histograms: the colour model at the end (a track keeps it for the next frame).
+            end, 0..1: the pose's confidence (0 unless 'ok').
+        status: 'ok', or why the pose was given back as it started: 'behind_camera' (not
+            finite, or the model origin nearer than half a diameter in depth, at the start or
+            during the run), 'outside_image', 'too_few_lines'.
+        histograms: the colour model at the end; for a start with a given model (a
+            track's), the colours measured at the final pose, to blend into it.
 
     """
 
@@ -234,14 +237,18 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                          f'{camera.width}x{camera.height}')
     if count == 0:
         return []
-    rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
-    translation = np.array(translations, dtype=float).reshape(count, 3)
+    start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
+    start_translation = np.array(translations, dtype=float).reshape(count, 3)
+    rotation, translation = start_rotation.copy(), start_translation.copy()
     batch = _Batch(models, bins, camera, config.min_continuous_px)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
     status[~finite | (translation[:, 2] <= 0.5 * batch.diameters)] = 'behind_camera'
     given = list(histograms) if histograms is not None else [None] * count
+    # A given colour model (a track's) is kept through the iterations, as SRT3D does within
+    # a frame; one measured around the start is re-measured as the pose improves.
+    learning = np.array([h is None for h in given])
     fresh_f, fresh_b, seen = batch.line_colors(rotation, translation)
     status[(status == 'ok') & ~seen] = 'outside_image'
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
@@ -269,11 +276,17 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             active &= ~behind
         if config.histogram_rate > 0.0:
             seen_f, seen_b, seen = batch.line_colors(rotation, translation)
-            update = active & seen
+            update = active & seen & learning
             rate = config.histogram_rate
             hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
             hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
     scores = batch.scores(rotation, translation)
+    if not learning.all():      # what a track learns from this frame: the colours at the end
+        seen_f, seen_b, seen = batch.line_colors(rotation, translation)
+        final = ~learning & seen
+        hist_f[final], hist_b[final] = seen_f[final], seen_b[final]
+    failed = status != 'ok'
+    rotation[failed], translation[failed] = start_rotation[failed], start_translation[failed]
     return [Refinement(rotation[k], translation[k],
                        float(scores[k]) if status[k] == 'ok' else 0.0, str(status[k]),
                        ColorHistograms(hist_f[k], hist_b[k]))

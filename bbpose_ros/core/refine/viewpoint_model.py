@@ -30,9 +30,12 @@ gives the silhouette at the cost of a few OpenCV calls, whatever the number of t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import hashlib
 from pathlib import Path
+import zipfile
+import zlib
 
 import cv2
 import numpy as np
@@ -101,7 +104,8 @@ class ViewpointModel:
                                      f'expected {CACHE_FORMAT}')
                 return cls(data['view_directions'], data['points'], data['normals'],
                            data['foreground_m'], data['background_m'], float(data['diameter']))
-        except (OSError, KeyError, ValueError) as err:
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile,
+                zlib.error) as err:
             raise InputError(f'{path}: not a viewpoint model ({err})') from err
 
 
@@ -244,7 +248,8 @@ def _view_contour(table, rotation, focal, size, count):
 
 def build_viewpoint_model(vertices: npt.ArrayLike, faces: npt.ArrayLike, diameter: float,
                           subdivisions: int = 2, points_per_view: int = 200,
-                          progress=None) -> ViewpointModel:
+                          progress: Callable[[int, int], None] | None = None
+                          ) -> ViewpointModel:
     """
     Compute the sparse viewpoint model of a mesh.
 
