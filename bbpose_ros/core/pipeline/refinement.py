@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The pipeline's refinement stage: each pose aligned with the image by ``RegionRefiner``.
+The pipeline's refinement stage: each pose aligned with the image by ``refine_poses``.
 
 It runs after the Bounding Box Equation, whose translation and the chosen rotation are the
 start; the silhouette corrects the depth that a box with a side a few pixels off gets
@@ -50,7 +50,7 @@ DEFAULT_REFINE_HYPOTHESES = 2
 
 class PoseRefiner:
     """
-    Refine the poses of a frame, one RegionRefiner per object.
+    Refine the poses of a frame in one batch (``refine_poses``), each with its object's model.
 
     Args:
         viewpoint_models: {name: ViewpointModel} of the objects that can be refined; poses
@@ -67,8 +67,6 @@ class PoseRefiner:
         self.config = config or RefinerConfig()
         self.min_score = float(min_score)
         self.viewpoint_models = dict(viewpoint_models)
-        self.refiners = {name: RegionRefiner(model, self.config)
-                         for name, model in viewpoint_models.items()}
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  poses: Sequence[PoseEstimate]) -> list[PoseEstimate]:
@@ -118,8 +116,8 @@ class PoseRefiner:
                    histograms: ColorHistograms | None = None,
                    iterations: int | None = None, fine_only: bool = False) -> Refinement:
         """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
-        return self.refiners[name].refine(image_rgb, camera, rotation, translation,
-                                          histograms, iterations, fine_only)
+        return RegionRefiner(self.viewpoint_models[name], self.config).refine(
+            image_rgb, camera, rotation, translation, histograms, iterations, fine_only)
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],

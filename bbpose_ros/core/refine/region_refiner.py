@@ -196,9 +196,6 @@ class RegionRefiner:
                 already close) instead of starting from the coarsest.
 
         """
-        if image_rgb.shape[:2] != (camera.height, camera.width):
-            raise InputError(f'image {image_rgb.shape[1]}x{image_rgb.shape[0]} does not match '
-                             f'the camera {camera.width}x{camera.height}')
         return refine_poses(color_bins(image_rgb), camera, [self.model], [rotation],
                             [translation], self.config, [histograms], iterations,
                             fine_only)[0]
