@@ -194,6 +194,34 @@ def test_pipeline_refines_and_rejects_by_score(viewpoint_models, lmo_models, lmo
     assert len(strict(image, frame.camera, result.poses[:1])) == 1
 
 
+def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_frames):
+    models, _ = viewpoint_models
+    frame = lmo_frames[0]
+    image = frame.load_image()
+    rng = np.random.default_rng(3)
+    truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.5]
+    groups = []
+    for truth in truths:
+        detection = Detection(truth.object_name, 1.0, truth.box_uv)
+        groups.append([PoseEstimate(detection, *perturb_pose(truth.rotation, truth.translation,
+                                                             angle, offset, rng))
+                       for angle, offset in ((60.0, 0.05), (5.0, 0.01))])
+    refiner = PoseRefiner(models, screening_iterations=3)
+    assert refiner.screening_iterations < refiner.config.iterations
+    kept = refiner.best_of(image, frame.camera, groups)
+    assert len(kept) == len(groups)
+    # The survivor of the screening continues where it stopped: the same pose as refining
+    # that candidate straight through.
+    straight = PoseRefiner(models)
+    for pose, group in zip(kept, groups):
+        ends = [straight(image, frame.camera, [candidate])[0] for candidate in group]
+        assert any(np.allclose(pose.rotation, end.rotation, atol=1e-9)
+                   and np.allclose(pose.translation, end.translation, atol=1e-9)
+                   and pose.refinement_score == end.refinement_score for end in ends)
+    near = [rotation_error_deg(p.rotation, t.rotation) < 10.0 for p, t in zip(kept, truths)]
+    assert np.mean(near) >= 0.5
+
+
 def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, lmo_frames):
     models, _ = viewpoint_models
     frame = lmo_frames[0]

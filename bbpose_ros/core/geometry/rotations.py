@@ -173,7 +173,7 @@ def egocentric_to_allocentric(rotation_ego: npt.ArrayLike, rays: npt.ArrayLike) 
 
 
 def exp_so3(rotation_vector: npt.ArrayLike) -> np.ndarray:
-    """(3, 3) rotation matrix of a (3,) rotation vector (axis times angle, radians)."""
+    """(..., 3, 3) rotation matrices of (..., 3) rotation vectors (axis times angle, radians)."""
     return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_matrix()
 
 

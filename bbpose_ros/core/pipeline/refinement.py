@@ -43,9 +43,12 @@ from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
-# Rotation hypotheses refined per detection by default: each costs one refinement, and the
-# second one still pays in accuracy (docs/refinement.md).
-DEFAULT_REFINE_HYPOTHESES = 2
+# Rotation hypotheses refined per detection by default: each costs the screening
+# iterations, and the third one still pays in accuracy (docs/refinement.md).
+DEFAULT_REFINE_HYPOTHESES = 3
+# Correspondence iterations every hypothesis of a detection gets before only the best-scored
+# one is refined to the end: the coarse scales, where a wrong start shows.
+DEFAULT_SCREENING_ITERATIONS = 6
 
 
 class PoseRefiner:
@@ -57,15 +60,22 @@ class PoseRefiner:
             of other objects pass unchanged.
         config: RefinerConfig shared by all objects.
         min_score: refined poses scored below this (0..1) are dropped; 0 keeps all.
+        screening_iterations: of a detection with several candidates, each is refined this
+            many iterations and only the best-scored continues (at least the config's
+            iterations: every candidate is refined to the end).
 
     """
 
     def __init__(self, viewpoint_models: Mapping[str, ViewpointModel],
-                 config: RefinerConfig | None = None, min_score: float = 0.0) -> None:
+                 config: RefinerConfig | None = None, min_score: float = 0.0,
+                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS) -> None:
         if not 0.0 <= min_score <= 1.0:
             raise InputError(f'refinement min_score must be in [0, 1], got {min_score}')
+        if screening_iterations < 1:
+            raise InputError(f'screening_iterations must be >= 1, got {screening_iterations}')
         self.config = config or RefinerConfig()
         self.min_score = float(min_score)
+        self.screening_iterations = int(screening_iterations)
         self.viewpoint_models = dict(viewpoint_models)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
@@ -76,7 +86,10 @@ class PoseRefiner:
     def best_of(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                 candidates: Sequence[Sequence[PoseEstimate]]) -> list[PoseEstimate]:
         """
-        Refine every candidate pose of each detection and keep the best-scored one.
+        Refine the candidate poses of each detection and keep the best-scored one.
+
+        Every candidate gets ``screening_iterations``; the best-scored candidate of each
+        detection then continues to the end of the schedule.
 
         Args:
             image_rgb: (H, W, 3) uint8 image.
@@ -92,14 +105,23 @@ class PoseRefiner:
         """
         jobs = [(k, pose) for k, group in enumerate(candidates) for pose in group
                 if pose.object_name in self.viewpoint_models]
-        results = refine_poses(color_bins(image_rgb), camera,
-                               [self.viewpoint_models[pose.object_name] for _, pose in jobs],
-                               [pose.rotation for _, pose in jobs],
-                               [pose.translation for _, pose in jobs], self.config)
+        bins = color_bins(image_rgb)
+        screened = max(len(group) for group in candidates) > 1 \
+            and self.screening_iterations < self.config.iterations
+        results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
+                               self.screening_iterations if screened else None)
         best = {}
         for (k, pose), result in zip(jobs, results):
             if k not in best or result.score > best[k][1].score:
                 best[k] = (pose, result)
+        if screened:
+            kept = list(best.items())
+            finished = self._refine(
+                bins, camera, [(k, pose) for k, (pose, _) in kept],
+                [(r.rotation, r.translation) if r.ok else (pose.rotation, pose.translation)
+                 for _, (pose, r) in kept],
+                self.config.iterations - self.screening_iterations, self.screening_iterations)
+            best = {k: (pose, result) for (k, (pose, _)), result in zip(kept, finished)}
         refined = []
         for k, group in enumerate(candidates):
             if k not in best:
@@ -111,13 +133,18 @@ class PoseRefiner:
                 refined.append(with_refinement(pose, result))
         return refined
 
+    def _refine(self, bins, camera, jobs, starts, iterations=None, first_iteration=0):
+        return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
+                            [r for r, _ in starts], [t for _, t in starts], self.config,
+                            iterations=iterations, first_iteration=first_iteration)
+
     def refine_one(self, image_rgb: np.ndarray, camera: CameraIntrinsics, name: str,
                    rotation: np.ndarray, translation: np.ndarray,
                    histograms: ColorHistograms | None = None,
-                   iterations: int | None = None, fine_only: bool = False) -> Refinement:
+                   iterations: int | None = None, first_iteration: int = 0) -> Refinement:
         """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
         return RegionRefiner(self.viewpoint_models[name], self.config).refine(
-            image_rgb, camera, rotation, translation, histograms, iterations, fine_only)
+            image_rgb, camera, rotation, translation, histograms, iterations, first_iteration)
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],
@@ -127,7 +154,8 @@ class PoseRefiner:
         """Refine tracked poses in one batch, from the fine end of the scale schedule."""
         return refine_poses(color_bins(image_rgb), camera,
                             [self.viewpoint_models[name] for name in names], rotations,
-                            translations, self.config, histograms, iterations, fine_only=True)
+                            translations, self.config, histograms, iterations,
+                            max(len(self.config.scales) - iterations, 0))
 
 
 def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:

@@ -161,6 +161,7 @@ _POSITIONS = np.arange(DISTRIBUTION_LENGTH) - (DISTRIBUTION_LENGTH - 1) / 2.0
 _NEAR = np.abs(_POSITIONS) <= AGREEMENT_PX
 _BINS = BINS_PER_CHANNEL ** 3
 _MIN_LINES = 6
+_MAX_LOG_RATIO = np.float32(math.log((1.0 - 1e-4) / 1e-4))
 
 
 class RegionRefiner:
@@ -180,7 +181,7 @@ class RegionRefiner:
     def refine(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                rotation: npt.ArrayLike, translation: npt.ArrayLike,
                histograms: ColorHistograms | None = None,
-               iterations: int | None = None, fine_only: bool = False) -> Refinement:
+               iterations: int | None = None, first_iteration: int = 0) -> Refinement:
         """
         Refine one pose (``refine_poses`` with one pose of this object).
 
@@ -192,20 +193,21 @@ class RegionRefiner:
             histograms: colour model to start from (a track's); None: measured around the
                 initial pose.
             iterations: correspondence iterations for this call (default: the config's).
-            fine_only: take the last ``iterations`` entries of the scale schedule (a track,
-                already close) instead of starting from the coarsest.
+            first_iteration: where in the scale schedule to start (a track, already close,
+                starts at a fine scale).
 
         """
         return refine_poses(color_bins(image_rgb), camera, [self.model], [rotation],
                             [translation], self.config, [histograms], iterations,
-                            fine_only)[0]
+                            first_iteration)[0]
 
 
 def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                  models: Sequence[ViewpointModel], rotations: Sequence[npt.ArrayLike],
                  translations: Sequence[npt.ArrayLike], config: RefinerConfig,
                  histograms: Sequence[ColorHistograms | None] | None = None,
-                 iterations: int | None = None, fine_only: bool = False) -> list[Refinement]:
+                 iterations: int | None = None, first_iteration: int = 0
+                 ) -> list[Refinement]:
     """
     Refine N poses in one image at once (all arrays carry the pose as first axis).
 
@@ -220,8 +222,10 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
         histograms: per pose, a colour model to start from, or None (measured around the
             initial pose).
         iterations: correspondence iterations (default: the config's).
-        fine_only: take the last ``iterations`` entries of the scale schedule (tracks,
-            already close) instead of starting from the coarsest.
+        first_iteration: index of the first iteration in the scale schedule: tracks,
+            already close, start at a fine scale; a refinement stopped after k iterations
+            continues at k (with ``histogram_rate`` 1 and no given colours, the colour model
+            is the one measured at the pose it stopped at, so nothing is lost).
 
     Returns:
         Per pose, a Refinement; a start behind the camera or with too few contour lines
@@ -251,8 +255,9 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
-    offset = max(len(config.scales) - iterations, 0) if fine_only else 0
-    for iteration in range(offset, offset + iterations):
+    if first_iteration < 0:
+        raise InputError(f'first_iteration must be >= 0, got {first_iteration}')
+    for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
         if not active.any():
             break
@@ -267,7 +272,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                                            config)
             before = rotation[active]
             rotation[active] = before @ step_r[active]
-            translation[active] += np.einsum('nij,nj->ni', before, step_t[active])
+            translation[active] += (before @ step_t[active][..., None])[..., 0]
             behind = active & (translation[:, 2] <= 0.5 * batch.diameters)
             status[behind] = 'behind_camera'
             active &= ~behind
@@ -299,28 +304,46 @@ class _Batch:
         self.bins = bins.ravel()
         self.camera = camera
         self.diameters = np.array([m.diameter for m in models])
+        poses_of = {}
+        for k, model in enumerate(models):
+            poses_of.setdefault(id(model), (model, []))[1].append(k)
+        self.groups = [(model, np.array(poses)) for model, poses in poses_of.values()]
         self.lines_per_view = models[0].points.shape[1]
+        self._projected = None
         if any(m.points.shape[1] != self.lines_per_view for m in models):
             raise InputError('viewpoint models refined together need the same points per view')
 
     def project(self, rotation, translation):
-        """Lines of each pose's closest view: model points, centres, normals, run lengths."""
-        views = [m.closest_view(r, t) for m, r, t in zip(self.models, rotation, translation)]
-        points = np.stack([m.points[v] for m, v in zip(self.models, views)])
-        normals_model = np.stack([m.normals[v] for m, v in zip(self.models, views)])
-        runs_f = np.stack([m.foreground_m[v] for m, v in zip(self.models, views)])
-        runs_b = np.stack([m.background_m[v] for m, v in zip(self.models, views)])
+        """
+        Lines of each pose's closest view: model points, centres, normals, run lengths.
+
+        The last projection is kept: colours and lines are measured at the same poses.
+        """
+        key = np.concatenate([rotation.ravel(), translation.ravel()])
+        if self._projected is not None and np.array_equal(key, self._projected[0]):
+            return self._projected[1]
+        # The camera's direction from each model origin, in the model frame: -R^T t.
+        directions = -(translation[:, None, :] @ rotation)[:, 0]
+        points, normals_model, runs_f, runs_b = (
+            np.empty((len(rotation), self.lines_per_view) + tail, dtype=np.float32)
+            for tail in ((3,), (3,), (), ()))
+        for model, poses in self.groups:
+            views = np.argmax(directions[poses] @ model.view_directions.T, axis=1)
+            points[poses], normals_model[poses] = model.points[views], model.normals[views]
+            runs_f[poses], runs_b[poses] = model.foreground_m[views], model.background_m[views]
         camera = self.camera
-        points_cam = np.einsum('npj,nij->npi', points, rotation) + translation[:, None, :]
+        points_cam = points @ rotation.transpose(0, 2, 1) + translation[:, None, :]
         z = points_cam[..., 2]
         in_front = z > 1e-6
         safe_z = np.where(in_front, z, 1e-6)
         centres = np.stack([camera.fx * points_cam[..., 0] / safe_z + camera.cx,
                             camera.fy * points_cam[..., 1] / safe_z + camera.cy], axis=-1)
-        normals = np.einsum('npj,nij->npi', normals_model, rotation[:, :2, :])
+        normals = normals_model @ rotation[:, :2, :].transpose(0, 2, 1)
         normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
         px_per_m = camera.fx / safe_z
-        return points, centres, normals, runs_f * px_per_m, runs_b * px_per_m, in_front
+        projected = points, centres, normals, runs_f * px_per_m, runs_b * px_per_m, in_front
+        self._projected = key, projected
+        return projected
 
     def line_colors(self, rotation, translation, chosen=None):
         """
@@ -338,9 +361,9 @@ class _Batch:
         for sign, runs in ((-1.0, runs_f), (1.0, runs_b)):
             keep = (offsets < np.minimum(runs - 1.0, MAX_HISTOGRAM_RUN_PX)[..., None]) \
                 & in_front[..., None]
-            uv = centres[:, :, None, :] + sign * offsets[:, None] * normals[:, :, None, :]
-            cols = np.floor(uv[..., 0] + 0.5).astype(np.int64)
-            rows = np.floor(uv[..., 1] + 0.5).astype(np.int64)
+            cols, rows = (np.floor(_along_lines(centres[..., axis] + 0.5, normals[..., axis],
+                                                sign * offsets)).astype(np.int64)
+                          for axis in (0, 1))
             keep &= (cols >= 0) & (cols < self.camera.width) & (rows >= 0) \
                 & (rows < self.camera.height)
             pose = np.broadcast_to(np.arange(len(rotation))[:, None, None], keep.shape)
@@ -368,18 +391,19 @@ class _Batch:
         valid = in_front & (np.minimum(runs_f, runs_b) >= self.min_continuous_px) & on_image
         if chosen is not None:
             valid &= chosen
-        offsets = (np.arange(length) - half).astype(np.float32)
-        uv = centres.astype(np.float32)[:, :, None, :] \
-            + offsets[:, None] * normals.astype(np.float32)[:, :, None, :]
         # Valid lines have coordinates >= -0.5, so truncating u + 0.5 rounds to the nearest
         # pixel; invalid ones are clipped into the image and ignored.
-        cols = np.clip((uv[..., 0] + 0.5).astype(np.int32), 0, camera.width - 1)
-        rows = np.clip((uv[..., 1] + 0.5).astype(np.int32), 0, camera.height - 1)
+        cols, rows = (np.clip(_along_lines(centres[..., axis] + 0.5, normals[..., axis],
+                                           np.arange(length) - half).astype(np.int32),
+                              0, size - 1)
+                      for axis, size in enumerate((camera.width, camera.height)))
         line_bins = self.bins[rows * camera.width + cols]
-        total = hist_f + hist_b
-        p_f = np.where(total > 0.0, hist_f / np.where(total > 0.0, total, 1.0), 0.5)
-        p_f = np.clip(p_f, 1e-4, 1.0 - 1e-4)
-        log_ratio_table = (np.log(p_f) - np.log1p(-p_f)).astype(np.float32).ravel()
+        # log(p_f / (1 - p_f)) with p_f = f / (f + b) clipped to [1e-4, 1 - 1e-4]; 0 for a
+        # colour neither histogram has seen.
+        tiny = np.float32(1e-30)
+        log_ratio_table = np.clip(np.log(hist_f.astype(np.float32) + tiny)
+                                  - np.log(hist_b.astype(np.float32) + tiny),
+                                  -_MAX_LOG_RATIO, _MAX_LOG_RATIO).ravel()
         pose = np.arange(len(rotation))[:, None, None] * _BINS
         log_ratio = log_ratio_table[pose + line_bins].reshape(
             *valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
@@ -409,10 +433,17 @@ class _Batch:
         return np.where(seen, agreeing.sum(axis=1) / np.count_nonzero(~even), 0.0)
 
 
+def _along_lines(starts, directions, offsets):
+    """(N, P, L) float32 coordinates starts + offsets * directions of (N, P) lines."""
+    # One image axis at a time: a trailing (u, v) axis of length 2 makes numpy's
+    # broadcasting loop an order of magnitude slower.
+    return starts.astype(np.float32)[..., None] \
+        + directions.astype(np.float32)[..., None] * np.asarray(offsets, dtype=np.float32)
+
+
 def _newton_steps(camera, rotation, translation, lines, scale, sigma, config):
     """Per pose, the Newton step: (N, 3, 3) rotation increment, (N, 3) model-frame shift."""
-    points_cam = np.einsum('npj,nij->npi', lines.points_model, rotation) \
-        + translation[:, None, :]
+    points_cam = lines.points_model @ rotation.transpose(0, 2, 1) + translation[:, None, :]
     x, y, z = np.moveaxis(points_cam, -1, 0)
     z = np.where(np.abs(z) > 1e-6, z, 1e-6)
     fx_z, fy_z = camera.fx / z, camera.fy / z
@@ -422,13 +453,13 @@ def _newton_steps(camera, rotation, translation, lines, scale, sigma, config):
     delta = (n_u * (u - lines.centres_uv[..., 0]) + n_v * (v - lines.centres_uv[..., 1])) / scale
     d_centre = np.stack([n_u * fx_z, n_v * fy_z, -(n_u * x * fx_z + n_v * y * fy_z) / z],
                         axis=-1) / scale
-    d_translation = np.einsum('npi,nij->npj', d_centre, rotation)
+    d_translation = d_centre @ rotation
     jacobian = np.concatenate([np.cross(lines.points_model, d_translation), d_translation],
                               axis=-1)
     weight = np.where(lines.valid, _MIN_VARIANCE / (sigma / scale) ** 2 / lines.variance, 0.0)
     weighted = jacobian * weight[..., None]
-    gradient = np.einsum('npk,np->nk', weighted, lines.mean - delta)
+    gradient = ((lines.mean - delta)[:, None, :] @ weighted)[:, 0]
     hessian = np.matmul(weighted.transpose(0, 2, 1), jacobian)
     hessian += np.diag([config.tikhonov_rotation] * 3 + [config.tikhonov_translation] * 3)
     theta = np.linalg.solve(hessian, gradient[..., None])[..., 0]
-    return np.stack([exp_so3(t) for t in theta[:, :3]]), theta[:, 3:]
+    return exp_so3(theta[:, :3]), theta[:, 3:]
