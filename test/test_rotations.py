@@ -107,3 +107,13 @@ def test_camera_from_k_p_and_scaling():
     np.testing.assert_allclose(camera.normalized(camera.project(point)), point[:2] / point[2])
     with pytest.raises(InputError, match='fx'):
         CameraIntrinsics.from_k(np.zeros((3, 3)), 640, 480)
+
+
+def test_exp_so3_matches_scipy_from_tiny_to_large_angles():
+    rng = np.random.default_rng(7)
+    for magnitude in (0.0, 1e-9, 1e-5, 1e-3, 0.5, 3.0):
+        vectors = rng.normal(size=(20, 3)) * magnitude
+        expected = Rotation.from_rotvec(vectors).as_matrix()
+        np.testing.assert_allclose(rot.exp_so3(vectors), expected, atol=1e-12)
+        np.testing.assert_allclose(rot.exp_so3(vectors[0]), expected[0], atol=1e-12)
+    assert rot.exp_so3(np.zeros((2, 4, 3))).shape == (2, 4, 3, 3)
