@@ -90,7 +90,7 @@ def test_viewpoint_model_lies_on_the_silhouette(viewpoint_models, lmo_models):
     outer = np.round(uv + 2.0 * normals).astype(int)
     assert mask[inner[:, 1], inner[:, 0]].mean() > 0.9
     assert (~mask[outer[:, 1], outer[:, 0]]).mean() > 0.9
-    assert vpm.closest_view(rotation, translation) == view
+    assert vpm.closest_views(rotation, translation).tolist() == [view]
 
 
 def test_viewpoint_cache_round_trip(viewpoint_models, lmo_models, tmp_path):
@@ -274,3 +274,4 @@ def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, l
                             lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models),
                             refine_hypotheses=2)
     assert pipeline.estimate(frame.load_image(), frame.camera).poses == []
+    assert PoseRefiner(models)(frame.load_image(), frame.camera, []) == []

@@ -106,7 +106,7 @@ class PoseRefiner:
         jobs = [(k, pose) for k, group in enumerate(candidates) for pose in group
                 if pose.object_name in self.viewpoint_models]
         bins = color_bins(image_rgb)
-        screened = max(len(group) for group in candidates) > 1 \
+        screened = any(len(group) > 1 for group in candidates) \
             and self.screening_iterations < self.config.iterations
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
                                self.screening_iterations if screened else None)

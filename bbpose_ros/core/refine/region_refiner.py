@@ -322,13 +322,11 @@ class _Batch:
         key = np.concatenate([rotation.ravel(), translation.ravel()])
         if self._projected is not None and np.array_equal(key, self._projected[0]):
             return self._projected[1]
-        # The camera's direction from each model origin, in the model frame: -R^T t.
-        directions = -(translation[:, None, :] @ rotation)[:, 0]
         points, normals_model, runs_f, runs_b = (
             np.empty((len(rotation), self.lines_per_view) + tail, dtype=np.float32)
             for tail in ((3,), (3,), (), ()))
         for model, poses in self.groups:
-            views = np.argmax(directions[poses] @ model.view_directions.T, axis=1)
+            views = model.closest_views(rotation[poses], translation[poses])
             points[poses], normals_model[poses] = model.points[views], model.normals[views]
             runs_f[poses], runs_b[poses] = model.foreground_m[views], model.background_m[views]
         camera = self.camera

@@ -78,11 +78,24 @@ class ViewpointModel:
     background_m: np.ndarray
     diameter: float
 
-    def closest_view(self, rotation: npt.ArrayLike, translation: npt.ArrayLike) -> int:
-        """Index of the stored view nearest to the camera direction of a model-to-camera pose."""
-        rotation = np.asarray(rotation, dtype=float)
-        direction = -rotation.T @ np.asarray(translation, dtype=float)
-        return int(np.argmax(self.view_directions @ direction))
+    def closest_views(self, rotations: npt.ArrayLike, translations: npt.ArrayLike
+                      ) -> np.ndarray:
+        """
+        Per pose, the index of the stored view nearest to the camera's direction.
+
+        Args:
+            rotations: (N, 3, 3) model-to-camera rotations.
+            translations: (N, 3) translations (any unit).
+
+        Returns:
+            (N,) int view indices.
+
+        """
+        rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+        translations = np.asarray(translations, dtype=float).reshape(-1, 3)
+        # The camera seen from the model origin, in the model frame: -R^T t.
+        directions = -(translations[:, None, :] @ rotations)[:, 0]
+        return np.argmax(directions @ self.view_directions.T, axis=1)
 
     def save(self, path: Path | str) -> None:
         """Write the model to ``path`` in .npz format, whatever its suffix."""
