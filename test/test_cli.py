@@ -20,6 +20,8 @@ from pathlib import Path
 import subprocess
 import sys
 
+import pytest
+
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.eval.evaluation import POSE_KEYS
 
@@ -48,6 +50,16 @@ def test_eval_refines_perturbed_ground_truth_sweep(lmo_root, tmp_path):
     assert 'refinement' in report['timing_ms']
     assert (tmp_path / 'plots' / 'refinement_basin.png').stat().st_size > 1000
     assert 'start 30 deg / 20 mm' in result.stdout
+    # What a minimum confidence keeps: everything at 0, less and less above; at 0 the share
+    # passing 5 cm / 5 deg is the pooled one of the per-object figures.
+    confidence = report['confidence']
+    kept = [row['kept'] for row in confidence]
+    assert kept[0] == 1.0 and kept == sorted(kept, reverse=True) and kept[-1] < 1.0
+    objects = report['objects'].values()
+    pooled = sum(o['cm5deg5'] * o['n'] for o in objects) / sum(o['detected'] for o in objects)
+    assert confidence[0]['cm5deg5_precision'] == pytest.approx(pooled)
+    assert (tmp_path / 'plots' / 'confidence.png').stat().st_size > 1000
+    assert 'minimum confidence' in result.stdout
     bad = bbpose('eval', '--dataset', lmo_root, '--boxes', 'detector', '--perturb-gt', '5,5')
     assert bad.returncode == 2 and '--perturb-gt needs --boxes gt --rotation gt' in bad.stderr
 

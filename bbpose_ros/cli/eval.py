@@ -69,7 +69,8 @@ def add_parser(subparsers):
     parser.add_argument('--json', type=Path, default=None, help='write the report here')
     parser.add_argument('--plots', type=Path, default=None,
                         help='write charts into this folder: recall curves, per-object '
-                             'recalls, errors by visible fraction')
+                             'recalls, errors by visible fraction, what a minimum confidence '
+                             'keeps')
     parser.set_defaults(func=run)
 
 
@@ -161,16 +162,19 @@ def run(args):
         write_json_atomic(args.json, report)
         print(f'report written to {args.json}')
     if args.plots is not None:
-        write_plots(args.plots, scores, report['objects'], report.get('sweep'))
+        write_plots(args.plots, scores, report['objects'], report.get('sweep'),
+                    report['confidence'])
         print(f'plots written to {args.plots}')
     return 0
 
 
-def write_plots(folder, scores, per_object, sweep=None):
+def write_plots(folder, scores, per_object, sweep=None, confidence=None):
     """Write the evaluation charts into ``folder`` (matplotlib is imported only here)."""
     from bbpose_ros.core.eval import plots
     plots.recall_curves(scores, folder / 'recall_curves.png')
     plots.object_bars(per_object, folder / 'objects.png')
     plots.errors_by_visibility(scores, folder / 'visibility.png')
+    if confidence:
+        plots.confidence_sweep(confidence, folder / 'confidence.png')
     if sweep:
         plots.refinement_basin(sweep, folder / 'refinement_basin.png')

@@ -50,6 +50,7 @@ ADD_THRESHOLD = 0.1           # fraction of the diameter
 PROJ_THRESHOLD_PX = 5.0
 RE_THRESHOLD_DEG = 5.0
 TE_THRESHOLD_M = 0.05
+CONFIDENCE_THRESHOLDS = tuple(k / 10.0 for k in range(10))
 MATCH_IOU = 0.1               # a pose is scored against the instance its box overlaps
 DETECTION_IOU = 0.5
 
@@ -59,7 +60,12 @@ POSE_KEYS = ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px', 're_median_d
 
 @dataclass(frozen=True)
 class InstanceScore:
-    """Errors of one counted ground-truth instance (NaN where missed), and how visible it is."""
+    """
+    Errors of one counted ground-truth instance (NaN where missed), and how visible it is.
+
+    ``confidence`` is the pose's (``PoseEstimate.confidence``: the refinement score when
+    refined, else the detection score), NaN where missed.
+    """
 
     object_name: str
     detected: bool
@@ -71,6 +77,7 @@ class InstanceScore:
     proj_px: float
     euler_deg: float
     visib_fract: float
+    confidence: float
 
 
 def match_by_score(boxes_det: npt.ArrayLike, scores: npt.ArrayLike, boxes_gt: npt.ArrayLike,
@@ -105,14 +112,15 @@ def score_instance(model: ObjectModel, instance: GroundTruthInstance, pose: Pose
     if pose is None:
         nan = float('nan')
         return InstanceScore(model.name, False, inside, nan, threshold, nan, nan, nan, nan,
-                             instance.visib_fract)
+                             instance.visib_fract, nan)
     args = (pose.rotation, pose.translation, instance.rotation, instance.translation)
     distance = metrics.adi if model.is_symmetric else metrics.add
     re_deg, te_m = metrics.cm_deg_errors(*args, model.symmetry_transforms)
     return InstanceScore(
         model.name, True, inside, distance(*args, model.eval_points), threshold, re_deg, te_m,
         metrics.proj(*args, camera.k, model.eval_points),
-        float(euler_error_deg(pose.rotation, instance.rotation)[0]), instance.visib_fract)
+        float(euler_error_deg(pose.rotation, instance.rotation)[0]), instance.visib_fract,
+        float(pose.confidence))
 
 
 def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
@@ -137,6 +145,35 @@ def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
         'euler_mean_deg': float(np.nanmean(errors('euler_deg'))) if found.size else math.nan,
         'te5cm_uncut': metrics.recall(errors('te_m')[inside], TE_THRESHOLD_M),
     }
+
+
+def confidence_sweep(scores: Mapping[str, Sequence[InstanceScore]],
+                     thresholds: Sequence[float] = CONFIDENCE_THRESHOLDS
+                     ) -> list[dict[str, float]]:
+    """
+    Tell what a minimum confidence (the node's ``refine_min_score``) keeps, all objects pooled.
+
+    Returns:
+        Per threshold, {'min_confidence', 'kept': share of the found poses scoring at least
+        it, 'add_s_precision' and 'cm5deg5_precision': shares of those kept that pass
+        ADD(-S) and 5 cm / 5 deg (NaN when none is kept)}.
+
+    """
+    found = [s for group in scores.values() for s in group if s.detected]
+    confidence = np.array([s.confidence for s in found], dtype=float)
+    add_ok = np.array([s.add_error < s.add_threshold for s in found], dtype=bool)
+    cm_deg_ok = np.array([s.re_deg < RE_THRESHOLD_DEG and s.te_m < TE_THRESHOLD_M
+                          for s in found], dtype=bool)
+    sweep = []
+    for threshold in thresholds:
+        kept = confidence >= threshold
+        sweep.append({
+            'min_confidence': float(threshold),
+            'kept': float(kept.mean()) if found else math.nan,
+            'add_s_precision': float(add_ok[kept].mean()) if kept.any() else math.nan,
+            'cm5deg5_precision': float(cm_deg_ok[kept].mean()) if kept.any() else math.nan,
+        })
+    return sweep
 
 
 def mean_over_objects(per_object: Mapping[str, Mapping[str, Any]],
@@ -168,11 +205,12 @@ def make_report(scores: Mapping[str, Sequence[InstanceScore]],
     Make the report dict of ``score_frames``' results.
 
     Returns:
-        {'objects': {name: POSE_KEYS}, 'mean': {...}, 'timing_ms': {...}, 'frames': count}.
+        {'objects': {name: POSE_KEYS}, 'mean': {...}, 'confidence': ``confidence_sweep``,
+        'timing_ms': {...}, 'frames': count}.
 
     """
-    return dict(summarize_objects(scores), timing_ms=timing_summary(timings),
-                frames=frame_count)
+    return dict(summarize_objects(scores), confidence=confidence_sweep(scores),
+                timing_ms=timing_summary(timings), frames=frame_count)
 
 
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
@@ -321,4 +359,10 @@ def format_report(report: Mapping[str, Any]) -> str:
                        for stage, t in report.get('timing_ms', {}).items())
     if timing:
         lines.append(f'timing per frame: {timing}')
+    if report.get('confidence'):
+        lines.append('minimum confidence: share of found poses kept, and of those kept the '
+                     'share passing ADD(-S) / 5cm5deg')
+        lines += [f'  >= {row["min_confidence"]:.1f}: kept {row["kept"]:.2f}, ADD(-S) '
+                  f'{row["add_s_precision"]:.3f}, 5cm5deg {row["cm5deg5_precision"]:.3f}'
+                  for row in report['confidence']]
     return '\n'.join(lines)

@@ -144,6 +144,24 @@ def refinement_basin(levels: Sequence[Mapping[str, Any]], path: Path | str) -> N
     _save(figure, path)
 
 
+def confidence_sweep(sweep: Sequence[Mapping[str, float]], path: Path | str) -> None:
+    """
+    Write what a minimum confidence keeps: the share of found poses, and their precision.
+
+    ``sweep`` is ``evaluation.confidence_sweep``'s list.
+    """
+    figure, (axis,) = _figure(1, width=6.0, height=4.0)
+    thresholds = [row['min_confidence'] for row in sweep]
+    for key, label in (('kept', 'share of found poses kept'),
+                       ('add_s_precision', 'kept poses passing ADD(-S)'),
+                       ('cm5deg5_precision', 'kept poses within 5 cm / 5 deg')):
+        axis.plot(thresholds, [row[key] for row in sweep], marker='o', label=label)
+    axis.set(xlabel='minimum confidence (refine_min_score)', ylabel='share', ylim=(0.0, 1.0))
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize='small')
+    _save(figure, path)
+
+
 def _figure(columns, width, height):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
