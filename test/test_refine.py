@@ -22,7 +22,7 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.geometry.rotations import perturb_pose, rotation_error_deg
+from bbpose_ros.core.geometry.rotations import exp_so3, perturb_pose, rotation_error_deg
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate, PosePipeline
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
@@ -220,6 +220,27 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
                    and pose.refinement_score == end.refinement_score for end in ends)
     near = [rotation_error_deg(p.rotation, t.rotation) < 10.0 for p, t in zip(kept, truths)]
     assert np.mean(near) >= 0.5
+
+
+def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models):
+    models, _ = viewpoint_models
+    rotation = look_at_rotation([0.3, -0.5, 0.8]).T
+    translation = np.array([0.0, 0.0, 0.8])
+    image = rendered_scene(lmo_models['duck'], rotation, translation, seed=5)
+    # A 100 px window around the duck: the coarse lines (114 px) never fit, the fine ones do.
+    u, v = np.round(CAMERA.project(translation[None])[0]).astype(int)
+    window = CameraIntrinsics(CAMERA.fx, CAMERA.fy, CAMERA.cx - (u - 50), CAMERA.cy - (v - 50),
+                              100, 100)
+    crop = np.ascontiguousarray(image[v - 50:v + 50, u - 50:u + 50])
+    detection = Detection('duck', 1.0, np.array([0.0, 0.0, 99.0, 99.0]))
+    candidates = [PoseEstimate(detection, exp_so3(axis) @ rotation, translation)
+                  for axis in ([0.05, 0.0, 0.0], [0.0, 0.05, 0.0])]
+    alone = RegionRefiner(models['duck']).refine(crop, window, candidates[0].rotation,
+                                                 translation)
+    assert alone.status == 'too_few_lines'
+    screened = PoseRefiner(models, screening_iterations=3).best_of(crop, window, [candidates])
+    assert len(screened) == 1 and screened[0].refinement_score == 0.0
+    np.testing.assert_array_equal(screened[0].rotation, candidates[0].rotation)
 
 
 def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, lmo_frames):

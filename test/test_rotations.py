@@ -109,11 +109,19 @@ def test_camera_from_k_p_and_scaling():
         CameraIntrinsics.from_k(np.zeros((3, 3)), 640, 480)
 
 
-def test_exp_so3_matches_scipy_from_tiny_to_large_angles():
+def test_exp_so3_turns_about_the_vector_by_its_length():
     rng = np.random.default_rng(7)
     for magnitude in (0.0, 1e-9, 1e-5, 1e-3, 0.5, 3.0):
-        vectors = rng.normal(size=(20, 3)) * magnitude
-        expected = Rotation.from_rotvec(vectors).as_matrix()
-        np.testing.assert_allclose(rot.exp_so3(vectors), expected, atol=1e-12)
-        np.testing.assert_allclose(rot.exp_so3(vectors[0]), expected[0], atol=1e-12)
+        vectors = rng.normal(size=(20, 3))
+        vectors *= magnitude / np.linalg.norm(vectors, axis=1, keepdims=True)
+        matrices = rot.exp_so3(vectors)
+        np.testing.assert_allclose(matrices @ np.swapaxes(matrices, 1, 2),
+                                   np.broadcast_to(np.eye(3), (20, 3, 3)), atol=1e-12)
+        np.testing.assert_allclose(np.linalg.det(matrices), 1.0, atol=1e-12)
+        # The axis stays put, and the angle is the vector's length.
+        np.testing.assert_allclose((matrices @ vectors[..., None])[..., 0], vectors,
+                                   atol=1e-12)
+        angles = np.arccos(np.clip((np.trace(matrices, axis1=1, axis2=2) - 1) / 2, -1, 1))
+        np.testing.assert_allclose(angles, magnitude, atol=1e-7)
+        np.testing.assert_allclose(rot.exp_so3(vectors[0]), matrices[0], atol=1e-15)
     assert rot.exp_so3(np.zeros((2, 4, 3))).shape == (2, 4, 3, 3)

@@ -174,20 +174,9 @@ def egocentric_to_allocentric(rotation_ego: npt.ArrayLike, rays: npt.ArrayLike) 
 
 def exp_so3(rotation_vector: npt.ArrayLike) -> np.ndarray:
     """(..., 3, 3) rotation matrices of (..., 3) rotation vectors (axis times angle, radians)."""
-    # Rodrigues' formula in numpy: the refiner calls it every Newton step, where scipy's
-    # Rotation costs more than the step itself.
     vector = np.asarray(rotation_vector, dtype=float)
-    x, y, z = np.moveaxis(vector, -1, 0)
-    zero = np.zeros_like(x)
-    skew = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(
-        vector.shape[:-1] + (3, 3))
-    angle_sq = (x * x + y * y + z * z)[..., None, None]
-    angle = np.sqrt(angle_sq)
-    small = angle < 1e-4       # Taylor series there: sin(a) / a and (1 - cos a) / a^2
-    safe = np.where(small, 1.0, angle)
-    sin_term = np.where(small, 1.0 - angle_sq / 6.0, np.sin(safe) / safe)
-    cos_term = np.where(small, 0.5 - angle_sq / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    return np.eye(3) + sin_term * skew + cos_term * (skew @ skew)
+    matrices = Rotation.from_rotvec(vector.reshape(-1, 3)).as_matrix()
+    return matrices.reshape(vector.shape[:-1] + (3, 3))
 
 
 def perturb_pose(rotation: npt.ArrayLike, translation: npt.ArrayLike, angle_deg: float,

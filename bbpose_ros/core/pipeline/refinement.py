@@ -47,7 +47,8 @@ if TYPE_CHECKING:
 # iterations, and the third one still pays in accuracy (docs/refinement.md).
 DEFAULT_REFINE_HYPOTHESES = 3
 # Correspondence iterations every hypothesis of a detection gets before only the best-scored
-# one is refined to the end: the coarse scales, where a wrong start shows.
+# one is refined to the end: the whole scale schedule once (6, 4, 2, 1) and two more at the
+# finest scale, by which a wrong start shows.
 DEFAULT_SCREENING_ITERATIONS = 6
 
 
@@ -62,7 +63,11 @@ class PoseRefiner:
         min_score: refined poses scored below this (0..1) are dropped; 0 keeps all.
         screening_iterations: of a detection with several candidates, each is refined this
             many iterations and only the best-scored continues (at least the config's
-            iterations: every candidate is refined to the end).
+            iterations: every candidate is refined to the end). Screening needs the config's
+            histogram_rate 1 (colours re-measured in full), under which it gives the same
+            pose as refining the chosen candidate in one run (unless no colours can be
+            measured at the pose it reached: then it ends as 'outside_image'); with another
+            rate every candidate is refined to the end.
 
     """
 
@@ -106,8 +111,11 @@ class PoseRefiner:
         jobs = [(k, pose) for k, group in enumerate(candidates) for pose in group
                 if pose.object_name in self.viewpoint_models]
         bins = color_bins(image_rgb)
+        # Resuming re-measures the colours at the pose reached, which is what a colour model
+        # re-measured in full after every iteration holds anyway.
         screened = any(len(group) > 1 for group in candidates) \
-            and self.screening_iterations < self.config.iterations
+            and self.screening_iterations < self.config.iterations \
+            and self.config.histogram_rate == 1.0
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
                                self.screening_iterations if screened else None)
         best = {}
@@ -115,13 +123,17 @@ class PoseRefiner:
             if k not in best or result.score > best[k][1].score:
                 best[k] = (pose, result)
         if screened:
-            kept = list(best.items())
+            # Winners that failed the screening stay failed, as they would have in one run.
+            going = [(k, pose, result) for k, (pose, result) in best.items() if result.ok]
             finished = self._refine(
-                bins, camera, [(k, pose) for k, (pose, _) in kept],
-                [(r.rotation, r.translation) if r.ok else (pose.rotation, pose.translation)
-                 for _, (pose, r) in kept],
+                bins, camera, [(k, pose) for k, pose, _ in going],
+                [(result.rotation, result.translation) for *_, result in going],
                 self.config.iterations - self.screening_iterations, self.screening_iterations)
-            best = {k: (pose, result) for (k, (pose, _)), result in zip(kept, finished)}
+            for (k, pose, _), result in zip(going, finished):
+                if not result.ok:       # a failure gives the candidate's own start back
+                    result = dataclasses.replace(result, rotation=pose.rotation,
+                                                 translation=pose.translation)
+                best[k] = (pose, result)
         refined = []
         for k, group in enumerate(candidates):
             if k not in best:

@@ -161,7 +161,7 @@ _POSITIONS = np.arange(DISTRIBUTION_LENGTH) - (DISTRIBUTION_LENGTH - 1) / 2.0
 _NEAR = np.abs(_POSITIONS) <= AGREEMENT_PX
 _BINS = BINS_PER_CHANNEL ** 3
 _MIN_LINES = 6
-_MAX_LOG_RATIO = np.float32(math.log((1.0 - 1e-4) / 1e-4))
+_MAX_LOG_RATIO = math.log((1.0 - 1e-4) / 1e-4)
 
 
 class RegionRefiner:
@@ -225,7 +225,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
         first_iteration: index of the first iteration in the scale schedule: tracks,
             already close, start at a fine scale; a refinement stopped after k iterations
             continues at k (with ``histogram_rate`` 1 and no given colours, the colour model
-            is the one measured at the pose it stopped at, so nothing is lost).
+            is the one measured at the pose it stopped at, as it would have been).
 
     Returns:
         Per pose, a Refinement; a start behind the camera or with too few contour lines
@@ -233,6 +233,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
 
     """
     count = len(models)
+    if first_iteration < 0:
+        raise InputError(f'first_iteration must be >= 0, got {first_iteration}')
     if bins.shape[:2] != (camera.height, camera.width):
         raise InputError(f'image {bins.shape[1]}x{bins.shape[0]} does not match the camera '
                          f'{camera.width}x{camera.height}')
@@ -255,8 +257,6 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
-    if first_iteration < 0:
-        raise InputError(f'first_iteration must be >= 0, got {first_iteration}')
     for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
         if not active.any():
@@ -299,7 +299,6 @@ class _Batch:
     """The viewpoint models and image of one refine_poses call, with the line sampling."""
 
     def __init__(self, models, bins, camera, min_continuous_px):
-        self.models = models
         self.min_continuous_px = min_continuous_px
         self.bins = bins.ravel()
         self.camera = camera
@@ -340,6 +339,8 @@ class _Batch:
         normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
         px_per_m = camera.fx / safe_z
         projected = points, centres, normals, runs_f * px_per_m, runs_b * px_per_m, in_front
+        for array in projected:
+            array.flags.writeable = False       # shared with the next caller at this pose
         self._projected = key, projected
         return projected
 
@@ -397,11 +398,11 @@ class _Batch:
                       for axis, size in enumerate((camera.width, camera.height)))
         line_bins = self.bins[rows * camera.width + cols]
         # log(p_f / (1 - p_f)) with p_f = f / (f + b) clipped to [1e-4, 1 - 1e-4]; 0 for a
-        # colour neither histogram has seen.
-        tiny = np.float32(1e-30)
-        log_ratio_table = np.clip(np.log(hist_f.astype(np.float32) + tiny)
-                                  - np.log(hist_b.astype(np.float32) + tiny),
-                                  -_MAX_LOG_RATIO, _MAX_LOG_RATIO).ravel()
+        # colour neither histogram has seen. In float64: a track's blended histograms keep
+        # bins far below float32's range.
+        tiny = np.finfo(float).tiny
+        log_ratio_table = np.clip(np.log(hist_f + tiny) - np.log(hist_b + tiny),
+                                  -_MAX_LOG_RATIO, _MAX_LOG_RATIO).astype(np.float32).ravel()
         pose = np.arange(len(rotation))[:, None, None] * _BINS
         log_ratio = log_ratio_table[pose + line_bins].reshape(
             *valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
@@ -433,8 +434,8 @@ class _Batch:
 
 def _along_lines(starts, directions, offsets):
     """(N, P, L) float32 coordinates starts + offsets * directions of (N, P) lines."""
-    # One image axis at a time: a trailing (u, v) axis of length 2 makes numpy's
-    # broadcasting loop an order of magnitude slower.
+    # One image axis at a time: numpy broadcasts over a trailing (u, v) axis of length 2
+    # in many short inner loops, much slower.
     return starts.astype(np.float32)[..., None] \
         + directions.astype(np.float32)[..., None] * np.asarray(offsets, dtype=np.float32)
 
