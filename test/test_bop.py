@@ -35,6 +35,16 @@ def test_reads_frames_ground_truth_and_intrinsics(lmo, lmo_frames):
     assert names == {'ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher'}
     depths = np.array([i.translation[2] for f in lmo_frames for i in f.instances])
     assert 0.3 < depths.min() and depths.max() < 2.0          # metres, not millimetres
+    # Rotations are read onto SO(3) (the file's matrices are not quite orthonormal), within
+    # a fraction of a degree of the stored ones.
+    scene_gt = json.loads((lmo.split_dir / f'{frame.scene_id:06d}' / 'scene_gt.json')
+                          .read_text())[str(frame.image_id)]
+    for instance, stored in zip(frame.instances, scene_gt):
+        matrix = np.reshape(stored['cam_R_m2c'], (3, 3))
+        np.testing.assert_allclose(instance.rotation @ instance.rotation.T, np.eye(3),
+                                   atol=1e-12)
+        assert abs(np.linalg.det(instance.rotation) - 1.0) < 1e-12
+        np.testing.assert_allclose(instance.rotation, matrix, atol=5e-3)
 
 
 def test_amodal_box_is_the_projected_model(lmo_frames, lmo_models):

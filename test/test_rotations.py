@@ -125,3 +125,19 @@ def test_exp_so3_turns_about_the_vector_by_its_length():
         np.testing.assert_allclose(angles, magnitude, atol=1e-7)
         np.testing.assert_allclose(rot.exp_so3(vectors[0]), matrices[0], atol=1e-15)
     assert rot.exp_so3(np.zeros((2, 4, 3))).shape == (2, 4, 3, 3)
+
+
+def test_nearest_rotation_projects_onto_so3():
+    rng = np.random.default_rng(3)
+    noisy = MATRICES[:50] * rng.uniform(0.997, 1.003, (50, 1, 1)) \
+        + rng.normal(0, 1e-4, (50, 3, 3))
+    projected = rot.nearest_rotation(noisy)
+    np.testing.assert_allclose(projected @ np.swapaxes(projected, 1, 2),
+                               np.broadcast_to(np.eye(3), (50, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(projected), 1.0, atol=1e-12)
+    assert rot.rotation_error_deg(projected, MATRICES[:50]).max() < 0.05
+    np.testing.assert_allclose(rot.nearest_rotation(MATRICES), MATRICES, atol=1e-12)
+    # Scaled by 1.003, a rotation 5.5 deg off reads under 5 deg off the trace; projected, not.
+    turned = rot.exp_so3([0.0, 0.0, np.radians(5.5)]) @ MATRICES[0]
+    assert rot.rotation_error_deg(turned, 1.003 * MATRICES[0]) < 5.0
+    assert rot.rotation_error_deg(turned, rot.nearest_rotation(1.003 * MATRICES[0])) > 5.4

@@ -32,6 +32,7 @@ import numpy.typing as npt
 from bbpose_ros.core.data.models import LINEMOD_OBJECTS, load_bop_models, MM_TO_M, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rotations import nearest_rotation
 
 
 # Where the development frames live beside a checkout (overridden by --dataset and
@@ -62,7 +63,8 @@ class GroundTruthInstance:
     Attributes:
         object_name: e.g. 'ape'.
         obj_id: BOP object id.
-        rotation: (3, 3) model-to-camera rotation.
+        rotation: (3, 3) model-to-camera rotation (the stored matrix projected onto SO(3):
+            ``nearest_rotation``).
         translation: (3,) metres, camera frame.
         box_uv: (4,) amodal box (whole projected model, hidden parts included),
             [u_min, v_min, u_max, v_max] continuous pixels; NaN when the annotation has
@@ -215,7 +217,8 @@ class BopDataset:
             instances.append(GroundTruthInstance(
                 object_name=LINEMOD_OBJECTS.get(obj_id, f'obj_{obj_id:06d}'),
                 obj_id=obj_id,
-                rotation=_field(gt, 'cam_R_m2c', scene_dir / 'scene_gt.json', where, (3, 3)),
+                rotation=nearest_rotation(_field(gt, 'cam_R_m2c', scene_dir / 'scene_gt.json',
+                                                 where, (3, 3))),
                 translation=_field(gt, 'cam_t_m2c', scene_dir / 'scene_gt.json', where,
                                    (3,)) * MM_TO_M,
                 box_uv=_optional_box(info, 'bbox_obj', scene_dir, where),

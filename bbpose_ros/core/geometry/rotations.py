@@ -172,6 +172,20 @@ def egocentric_to_allocentric(rotation_ego: npt.ArrayLike, rays: npt.ArrayLike) 
     return np.swapaxes(views, -1, -2) @ np.asarray(rotation_ego, dtype=float).reshape(-1, 3, 3)
 
 
+def nearest_rotation(matrix: npt.ArrayLike) -> np.ndarray:
+    """
+    Return the rotation closest (Frobenius norm) to each of (..., 3, 3) near-rotations.
+
+    Stored poses carry rounded digits (BOP's ``cam_R_m2c`` is not quite orthonormal); an
+    angle read off the trace of such a matrix can be degrees off near 5 deg, so ground
+    truth is projected onto SO(3) when read.
+    """
+    u, _, vt = np.linalg.svd(np.asarray(matrix, dtype=float))
+    flip = np.ones(u.shape[:-1])
+    flip[..., -1] = np.sign(np.linalg.det(u @ vt))
+    return (u * flip[..., None, :]) @ vt
+
+
 def exp_so3(rotation_vector: npt.ArrayLike) -> np.ndarray:
     """(..., 3, 3) rotation matrices of (..., 3) rotation vectors (axis times angle, radians)."""
     vector = np.asarray(rotation_vector, dtype=float)
