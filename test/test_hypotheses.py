@@ -48,7 +48,8 @@ def test_the_box_picks_out_the_true_rotation_among_turned_ones(lmo_frames, lmo_m
     right = []
     for frame, detections, hypotheses in real_hypotheses(lmo_frames, lmo_models):
         chosen = selector(frame.camera, detections, hypotheses)
-        right.extend(rotation_error_deg(chosen, hypotheses.rotations[:, 0]) < 1e-6)
+        # Decoys are 90 deg or more away; equal matrices read ~1e-6 deg off the trace.
+        right.extend(rotation_error_deg(chosen, hypotheses.rotations[:, 0]) < 1e-3)
     assert len(right) > 100
     assert np.mean(right) > 0.8
 

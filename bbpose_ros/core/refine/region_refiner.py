@@ -82,7 +82,7 @@ class RefinerConfig:
 
     scales: tuple[int, ...] = (6, 4, 2, 1)
     standard_deviations: tuple[float, ...] = (15.0, 5.0, 3.5, 1.5)
-    iterations: int = 10
+    iterations: int = 20
     newton_steps: int = 2
     tikhonov_rotation: float = 1000.0
     tikhonov_translation: float = 30000.0
