@@ -131,9 +131,7 @@ def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
     found = errors('re_deg')[~np.isnan(errors('re_deg'))]
     te_found = errors('te_m')[~np.isnan(errors('te_m'))]
     inside = np.array([s.box_inside_image for s in scores], dtype=bool)
-    with np.errstate(invalid='ignore'):
-        cm_deg = (errors('re_deg') < RE_THRESHOLD_DEG) & (errors('te_m') < TE_THRESHOLD_M)
-        add_ok = errors('add_error') < errors('add_threshold')
+    add_ok, cm_deg = _passes(scores)
     return {
         'n': len(scores),
         'detected': int(sum(s.detected for s in scores)),
@@ -161,9 +159,7 @@ def confidence_sweep(scores: Mapping[str, Sequence[InstanceScore]],
     """
     found = [s for group in scores.values() for s in group if s.detected]
     confidence = np.array([s.confidence for s in found], dtype=float)
-    add_ok = np.array([s.add_error < s.add_threshold for s in found], dtype=bool)
-    cm_deg_ok = np.array([s.re_deg < RE_THRESHOLD_DEG and s.te_m < TE_THRESHOLD_M
-                          for s in found], dtype=bool)
+    add_ok, cm_deg_ok = _passes(found)
     sweep = []
     for threshold in thresholds:
         kept = confidence >= threshold
@@ -174,6 +170,16 @@ def confidence_sweep(scores: Mapping[str, Sequence[InstanceScore]],
             'cm5deg5_precision': float(cm_deg_ok[kept].mean()) if kept.any() else math.nan,
         })
     return sweep
+
+
+def _passes(scores):
+    """(N,) bool each: ADD(-S) passed, 5 cm / 5 deg passed (a missed instance fails both)."""
+    def errors(name):
+        return np.array([getattr(s, name) for s in scores], dtype=float)
+
+    with np.errstate(invalid='ignore'):
+        return (errors('add_error') < errors('add_threshold'),
+                (errors('re_deg') < RE_THRESHOLD_DEG) & (errors('te_m') < TE_THRESHOLD_M))
 
 
 def mean_over_objects(per_object: Mapping[str, Mapping[str, Any]],

@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
 # Rotation hypotheses refined per detection by default: each costs the screening
-# iterations, and the third one still pays in accuracy (docs/refinement.md).
+# iterations; accuracy by their number in docs/refinement.md.
 DEFAULT_REFINE_HYPOTHESES = 3
 # Correspondence iterations every hypothesis of a detection gets before only the best-scored
 # one is refined to the end: the whole scale schedule once (6, 4, 2, 1) and two more at the
