@@ -70,7 +70,10 @@ from bbpose_ros.ros.stamps import REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
-UNPAIRED_TIMEOUT_S = 1.0    # an image waiting longer for its CameraInfo is dropped
+# An image waiting longer for its CameraInfo is dropped. Longer than a reliable writer's
+# repair of a lost sample (Fast DDS heartbeat period: 3 s), which a burst of large images
+# can make a CameraInfo wait for; a newer image displaces the waiting one anyway.
+UNPAIRED_TIMEOUT_S = 5.0
 WORKER_JOIN_TIMEOUT_S = 1.0
 # How far ahead of this node's clock an image stamp may be before it is reported: clocks of
 # synchronised machines agree much better, a camera on its own clock is far off.
