@@ -126,7 +126,7 @@ def score_instance(model: ObjectModel, instance: GroundTruthInstance, pose: Pose
 def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
     """Per-object figures (POSE_KEYS) from a list of InstanceScore of one object."""
     def errors(name):
-        return np.array([getattr(s, name) for s in scores], dtype=float)
+        return _values(scores, name)
 
     found = errors('re_deg')[~np.isnan(errors('re_deg'))]
     te_found = errors('te_m')[~np.isnan(errors('te_m'))]
@@ -174,12 +174,15 @@ def confidence_sweep(scores: Mapping[str, Sequence[InstanceScore]],
 
 def _passes(scores):
     """(N,) bool each: ADD(-S) passed, 5 cm / 5 deg passed (a missed instance fails both)."""
-    def errors(name):
-        return np.array([getattr(s, name) for s in scores], dtype=float)
-
     with np.errstate(invalid='ignore'):
-        return (errors('add_error') < errors('add_threshold'),
-                (errors('re_deg') < RE_THRESHOLD_DEG) & (errors('te_m') < TE_THRESHOLD_M))
+        return (_values(scores, 'add_error') < _values(scores, 'add_threshold'),
+                (_values(scores, 're_deg') < RE_THRESHOLD_DEG)
+                & (_values(scores, 'te_m') < TE_THRESHOLD_M))
+
+
+def _values(scores, name):
+    """(N,) float array of one InstanceScore field (NaN where the instance was missed)."""
+    return np.array([getattr(s, name) for s in scores], dtype=float)
 
 
 def mean_over_objects(per_object: Mapping[str, Mapping[str, Any]],

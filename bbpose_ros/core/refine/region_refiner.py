@@ -257,6 +257,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
+    seen_at_end = None      # colours measured at the final poses, when an iteration did it
     for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
         if not active.any():
@@ -277,14 +278,14 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             status[behind] = 'behind_camera'
             active &= ~behind
         if config.histogram_rate > 0.0:
-            seen_f, seen_b, seen = batch.line_colors(rotation, translation)
+            seen_at_end = seen_f, seen_b, seen = batch.line_colors(rotation, translation)
             update = active & seen & learning
             rate = config.histogram_rate
             hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
             hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
     scores = batch.scores(rotation, translation)
     if not learning.all():      # what a track learns from this frame: the colours at the end
-        seen_f, seen_b, seen = batch.line_colors(rotation, translation)
+        seen_f, seen_b, seen = seen_at_end or batch.line_colors(rotation, translation)
         final = ~learning & seen
         hist_f[final], hist_b[final] = seen_f[final], seen_b[final]
     failed = status != 'ok'
