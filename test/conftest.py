@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Shared fixtures: the real LM-O frames in ../shared (or $BBPOSE_DATASET)."""
+"""Shared fixtures: the real LM-O frames in ../shared (or $BBPOSE_DATASET), headless GL."""
 
 import os
 from pathlib import Path
@@ -54,3 +54,16 @@ def lmo_models(lmo):
 def lmo_frames(lmo):
     """All frames of the LM-O subset."""
     return lmo.frames()
+
+
+@pytest.fixture(scope='session')
+def egl():
+    """Skip the tests that render when headless OpenGL (EGL) is unavailable: one render tells."""
+    from bbpose_ros.core.geometry.camera import CameraIntrinsics
+    from bbpose_ros.core.render import Lighting, MeshRenderer
+    try:
+        renderer = MeshRenderer(CameraIntrinsics(50.0, 50.0, 15.5, 11.5, 32, 24), {})
+        renderer.render([], Lighting())
+        renderer.close()
+    except RuntimeError as err:
+        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')

@@ -42,9 +42,9 @@ from test_ros_support import weight_files, write_params
 from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
-from bbpose_ros.cli.graph.benchmark import camera_messages
+from bbpose_ros.cli.graph.graph_bench import camera_messages
 from bbpose_ros.cli.graph.replay import NodeProcess
-from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status
 
 OUT = '/bbpose_node'

@@ -78,6 +78,9 @@ def test_graph_bench_answers_and_writes_every_key(lmo_root, tmp_path):
     assert report['per_minute'][0]['published'] == 8
     assert report['latency_p95_drift_percent'] is None   # no full minute
     assert isinstance(node['counts'], dict)
+    # The stop is timed and its exit code kept; test_node* assert a clean stop's code.
+    assert node['stop_s'] > 0 and isinstance(node['exit_code'], int)
+    assert 'node stop (SIGINT -> exit)' in result.stdout
 
 
 def test_rss_after_settling_tells_a_step_from_a_climb():

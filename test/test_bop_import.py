@@ -52,14 +52,11 @@ def bbpose(*argv):
 
 
 @pytest.fixture(scope='module')
-def synth_folder(tmp_path_factory, lmo_root):
-    """``bbpose synth --count 6 --seed 3`` of all LM-O objects; skip when EGL is unavailable."""
+def synth_folder(egl, tmp_path_factory, lmo_root):
+    """``bbpose synth --count 6 --seed 3`` of all LM-O objects."""
     out = tmp_path_factory.mktemp('synth') / 'synth'
-    try:
-        code = bbpose('synth', '--dataset', lmo_root, '--out', out, '--count', SCENES,
-                      '--seed', SEED, '--previews', 0)
-    except RuntimeError as err:
-        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')
+    code = bbpose('synth', '--dataset', lmo_root, '--out', out, '--count', SCENES,
+                  '--seed', SEED, '--previews', 0)
     assert code == 0
     return out
 

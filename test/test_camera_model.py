@@ -29,7 +29,8 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, CameraModel, Rectifier
-from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.options import PipelineOptions
 
 # Distortions of the kind a calibration gives, several to tens of pixels at the corners.
 DISTORTIONS = {
@@ -165,7 +166,7 @@ def test_rectified_images_come_back_to_the_originals(redistorted, name):
 @pytest.mark.parametrize('name', list(DISTORTIONS))
 def test_redistorted_frames_give_the_poses_of_the_originals(redistorted, lmo_models, name):
     frames, originals, images = redistorted
-    pipeline = load_pipeline(lmo_models, threads=1)
+    pipeline = load_pipeline(lmo_models, PipelineOptions(refine=False, threads=1))
     k = frames[0].camera.k
     rectify = camera_model(info(k, d=DISTORTIONS[name], model=name), 640, 480)
     ignore = camera_model(info(k), 640, 480)              # the distortion left in

@@ -131,7 +131,8 @@ def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
     assert weights.returncode == 2 and 'mine.pt' in weights.stderr
     weight = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--max-frames', '1',
                     '--box-consistency-weight', '-1', '--json', out)
-    assert weight.returncode == 2 and 'box_consistency_weight must be >= 0' in weight.stderr
+    assert weight.returncode == 2 and '--box-consistency-weight: -1.0 is out of range' in \
+        weight.stderr
     bag = bbpose('make-bag', '--dataset', tmp_path / 'nope', '--out', tmp_path / 'bag')
     assert bag.returncode == 2 and 'nope' in bag.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -22,10 +22,11 @@ import pytest
 import torch
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.render import mask_box_uv, projected_box_uv
 from bbpose_ros.core.render.reference import render_silhouette
 from bbpose_ros.core.synth.crop_scenes import CropScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, is_crop_cache
@@ -37,14 +38,10 @@ TARGETS = ('ape', 'driller', 'eggbox')
 
 
 @pytest.fixture(scope='module')
-def crop_scenes(lmo_models):
-    """Build the CropScenes of TARGETS (seed 3, 64 px); skip when EGL is unavailable."""
+def crop_scenes(egl, lmo_models):
+    """Build the CropScenes of TARGETS (seed 3, 64 px)."""
     scenes = CropScenes({n: lmo_models[n] for n in TARGETS}, CAMERA, seed=3,
                         box_sigma=0.05)
-    try:
-        scenes.sample(0)
-    except RuntimeError as err:
-        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')
     yield scenes
     scenes.close()
 

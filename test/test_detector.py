@@ -21,7 +21,7 @@ import torch
 from bbpose_ros.core.eval.detection import average_precision
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.verifier import CandidateVerifier
-from bbpose_ros.core.pipeline.estimators import best_per_class, BoxDetector
+from bbpose_ros.core.pipeline.box_detector import best_per_class, BoxDetector
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 

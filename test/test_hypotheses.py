@@ -20,9 +20,9 @@ from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
-from bbpose_ros.core.pipeline.hypotheses import (box_misfit, farthest_points, HypothesisSelector,
-                                                 RotationHypotheses)
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PosePipeline
+from bbpose_ros.core.pipeline.hypotheses import box_misfit, farthest_points, HypothesisSelector
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 
 # Decoys: the true rotation turned 90 deg about the model's x, y or z axis, or 180 about x.
 DECOY_TURNS = Rotation.from_rotvec(np.pi / 2 * np.eye(3)).as_matrix()

@@ -19,7 +19,8 @@ The package's import rules, read from the source (AST): layers point one way.
 cli -> bags, ros -> core; the core imports no ROS and nothing of ros/, bags/ or cli/; ros/
 imports nothing of cli/ or bags/; in the core, training may use synth but never the other
 way, and the running node reaches nothing of core/eval, core/training, core/synth or cli
-through any chain of imports.
+through any chain of imports. No module imports itself through a chain of others (no
+circle, lazy and type-checking imports included), and no two modules share a file name.
 """
 
 import ast
@@ -38,19 +39,30 @@ def _module_name(path):
     return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
 
 
+PATHS = sorted(PACKAGE.rglob('*.py'))
+KNOWN = {_module_name(p) for p in PATHS}
+
+
 def _imports(path):
-    """Return every module name the file imports, at any depth (lazy imports count)."""
+    """
+    Return every module name the file imports, at any depth (lazy imports count).
+
+    ``from a import b`` names a.b when that is a module of the package (a package's
+    submodule), else a.
+    """
     names = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module:
-            names.add(node.module)
-            names.update(f'{node.module}.{alias.name}' for alias in node.names)
+            submodules = {f'{node.module}.{alias.name}' for alias in node.names} & KNOWN
+            names.update(submodules)
+            if len(submodules) < len(node.names):
+                names.add(node.module)
     return names
 
 
-MODULES = {_module_name(p): _imports(p) for p in sorted(PACKAGE.rglob('*.py'))}
+MODULES = {_module_name(p): _imports(p) for p in PATHS}
 
 
 def _internal(names):
@@ -75,7 +87,7 @@ def _in(name, prefix):
 
 def test_the_scan_sees_the_package():
     assert 'bbpose_ros.ros.node' in MODULES
-    assert 'bbpose_ros.core.pipeline.estimators' in _internal(MODULES['bbpose_ros.ros.estimator'])
+    assert 'bbpose_ros.core.pipeline.loader' in _internal(MODULES['bbpose_ros.ros.node_pipeline'])
     assert len(MODULES) >= 60
 
 
@@ -103,6 +115,43 @@ def test_the_scan_sees_the_package():
 ])
 def test_layers_import_one_way(layer, forbidden):
     assert _violations(layer, forbidden) == []
+
+
+def _circles():
+    """Return the import circles: strongly connected groups of modules (Tarjan)."""
+    index, low, stack, on_stack, circles = {}, {}, [], set(), []
+
+    def visit(module):
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        on_stack.add(module)
+        for name in _internal(MODULES[module]) - {module}:
+            if name not in index:
+                visit(name)
+                low[module] = min(low[module], low[name])
+            elif name in on_stack:
+                low[module] = min(low[module], index[name])
+        if low[module] == index[module]:
+            group = {stack.pop()}
+            while module not in group:
+                group.add(stack.pop())
+            on_stack.difference_update(group)
+            if len(group) > 1:
+                circles.append(sorted(group))
+
+    for module in MODULES:
+        if module not in index:
+            visit(module)
+    return circles
+
+
+def test_no_import_circles():
+    assert _circles() == []
+
+
+def test_no_two_modules_share_a_name():
+    names = [p.name for p in PACKAGE.rglob('*.py') if p.name != '__init__.py']
+    assert sorted({n for n in names if names.count(n) > 1}) == []
 
 
 def test_core_and_bags_import_no_ros():

@@ -24,8 +24,9 @@ from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.backends import inference_network, make_runner
-from bbpose_ros.core.pipeline.estimators import BoxDetector, QNetRotationEstimator
-from bbpose_ros.core.pipeline.pose_pipeline import Detection
+from bbpose_ros.core.pipeline.box_detector import BoxDetector
+from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 RNG = np.random.default_rng(5)

@@ -31,9 +31,9 @@ from test_ros_support import write_params
 from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
-from bbpose_ros.cli.graph.benchmark import camera_messages
+from bbpose_ros.cli.graph.graph_bench import camera_messages
 from bbpose_ros.cli.graph.replay import NodeProcess
-from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status
 
 OUT = '/bbpose_node'
@@ -140,13 +140,15 @@ def test_a_failed_configure_gives_its_reason_and_stays_unconfigured(graph):
     node.check_alive()
 
 
-def test_configure_loads_without_serving(graph):
+def test_configure_loads_and_makes_publishers_without_serving(graph):
     client, _, _ = graph
     assert set_parameter(client, 'objects', ['ape', 'can', 'glue']).successful
     assert transition(client, Transition.TRANSITION_CONFIGURE)
     assert state(client) == 'inactive'
     assert client.image.get_subscription_count() == 0
-    assert client.node.count_publishers(MARKERS) == 0
+    # Lifecycle publishers exist from configure on; they publish once active.
+    assert client.spin_until(lambda: client.node.count_publishers(MARKERS) == 1)
+    assert client.received[MARKERS] == []
 
 
 def test_activate_serves_and_deactivate_stops(graph):
@@ -158,8 +160,8 @@ def test_activate_serves_and_deactivate_stops(graph):
     assert answered(client)
     assert transition(client, Transition.TRANSITION_DEACTIVATE)
     assert state(client) == 'inactive'
-    assert client.spin_until(lambda: client.image.get_subscription_count() == 0
-                             and client.node.count_publishers(MARKERS) == 0)
+    assert client.spin_until(lambda: client.image.get_subscription_count() == 0)
+    assert client.node.count_publishers(MARKERS) == 1
 
 
 def test_activate_again_after_deactivate(graph):
@@ -169,13 +171,20 @@ def test_activate_again_after_deactivate(graph):
     assert answered(client)
 
 
+def set_and_rebuild(client, log, name, value):
+    """Set a ``pipeline`` parameter and wait until the node has rebuilt its pipeline."""
+    log.mark()
+    assert set_parameter(client, name, value).successful
+    assert log.wait_for('pipeline rebuilt for', name), log.path
+
+
 def test_thresholds_and_objects_change_at_run_time(graph):
-    client, _, _ = graph
-    assert set_parameter(client, 'score_threshold', 1.0).successful
+    client, _, log = graph
+    set_and_rebuild(client, log, 'score_threshold', 1.0)
     assert reported(answered(client)) == set()
-    assert set_parameter(client, 'score_threshold', 0.0).successful
+    set_and_rebuild(client, log, 'score_threshold', 0.0)
     assert reported(answered(client)) == {'ape', 'can', 'glue'}
-    assert set_parameter(client, 'objects', ['driller']).successful
+    set_and_rebuild(client, log, 'objects', ['driller'])
     assert client.node.count_publishers(f'{OUT}/driller/pose') == 1
     assert reported(answered(client)) == {'driller'}
 
@@ -203,6 +212,7 @@ def test_cleanup_then_shutdown(graph):
     assert transition(client, Transition.TRANSITION_DEACTIVATE)
     assert transition(client, Transition.TRANSITION_CLEANUP)
     assert state(client) == 'unconfigured'
+    assert client.spin_until(lambda: client.node.count_publishers(MARKERS) == 0)
     assert last_status(client, lifecycle_state='unconfigured') is not None
     assert transition(client, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
     assert state(client) == 'finalized'

@@ -20,7 +20,6 @@ with SIGINT.
 """
 
 import signal
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
@@ -29,7 +28,7 @@ import pytest
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import CameraInfo, Image
-from test_ros_support import GraphClient, NodeLog, use_private_domain, weight_files
+from test_ros_support import GraphClient, NodeLog, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -38,12 +37,12 @@ from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.cli.graph.replay import NodeProcess
+from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
-from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
-from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
-from bbpose_ros.ros.params import LMO_OBJECTS
 
 FRAMES = 4
 START_NS = 1_700_000_000 * 1_000_000_000
@@ -147,9 +146,8 @@ def test_every_bag_frame_answered_like_the_offline_pipeline(graph, bag, lmo_mode
                                                      for m in client.received[DEBUG]})
 
     frames = read_bag_frames(bag)
-    # The node's defaults: refinement of each detection's 2 best hypotheses.
-    pipeline = load_pipeline(lmo_models, *weights, score_threshold=0.0, refine=True,
-                             refine_hypotheses=DEFAULT_REFINE_HYPOTHESES)
+    # The node's defaults (refinement of each detection's best hypotheses), score 0.
+    pipeline = load_pipeline(lmo_models, PipelineOptions(score_threshold=0.0), *weights)
     poses = {name: client.received[f'{OUT}/{name}/pose'] for name in LMO_OBJECTS}
     for frame in frames:
         expected = pipeline.estimate(frame.image_rgb, frame.camera).poses
@@ -269,10 +267,8 @@ def test_a_burst_is_not_queued_and_every_frame_is_accounted_for(graph, first_fra
     assert client.spin_until(accounted)
 
 
-def test_sigint_stops_the_node_within_two_seconds(graph):
+def test_sigint_stops_the_node_cleanly(graph):
     _, node, _ = graph
     node.process.send_signal(signal.SIGINT)
-    start = time.monotonic()
-    code = node.process.wait(10.0)
-    assert time.monotonic() - start < 2.0
-    assert code == 0
+    # How long a stop takes is measured by ``bbpose bench --graph`` (node.stop_s).
+    assert node.process.wait(TIMEOUT_S) == 0

@@ -17,10 +17,9 @@
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
-from test_ros_support import NodeLog, REPO_ROOT, use_private_domain, weight_files
+from test_ros_support import NodeLog, REPO_ROOT, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
 
 
@@ -40,7 +39,18 @@ def start(params, *overrides):
                             text=True, cwd=REPO_ROOT)
 
 
-@pytest.mark.parametrize('values, overrides, expected', [
+# One process tries every configuration in turn (``main`` as the console script runs it),
+# each between markers on stderr: a start costs seconds, a configuration does not.
+TRY_EACH = """
+import sys
+from bbpose_ros.ros.node import main
+for index, args in enumerate(sys.argv[1:]):
+    print(f'=== {index} begin', file=sys.stderr, flush=True)
+    code = main(args.split('\\t'))
+    print(f'=== {index} exit {code}', file=sys.stderr, flush=True)
+"""
+
+BAD_CONFIGURATIONS = [
     ({'score_threshold': 1}, (), "parameter 'score_threshold'"),             # int for float
     ({}, ('max_instances:=0',), 'max_instances out of range'),
     ({'objects': ['ape', 'teapot']}, (), 'unknown object name(s) teapot'),
@@ -48,25 +58,36 @@ def start(params, *overrides):
     ({'dataset_dir': '/nonexistent'}, (), 'dataset_dir: /nonexistent has no models/'),
     ({'inference_backend': 'tensorrt'}, (), 'inference_backend: "tensorrt" is not one of'),
     ({'device': 'cuda'}, (), 'onnxruntime runs on the CPU only'),
-])
-def test_bad_configuration_is_refused_clearly(lmo_root, weights, tmp_path, values, overrides,
-                                              expected):
-    params = write_params(tmp_path / 'params.yaml', lmo_root, weights, **values)
-    process = start(params, *overrides)
-    _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 1
-    assert 'cannot start' in stderr and expected in stderr, stderr
-    assert 'Traceback' not in stderr
+]
 
 
-def test_sigterm_stops_the_node_within_two_seconds(lmo_root, weights, tmp_path):
+def test_bad_configurations_are_refused_clearly(lmo_root, weights, tmp_path):
+    runs = []
+    for index, (values, overrides, _) in enumerate(BAD_CONFIGURATIONS):
+        params = write_params(tmp_path / f'params{index}.yaml', lmo_root, weights, **values)
+        args = ['--ros-args', '--params-file', str(params)]
+        for override in overrides:
+            args += ['-p', override]
+        runs.append('\t'.join(args))
+    process = subprocess.run([sys.executable, '-c', TRY_EACH, *runs], capture_output=True,
+                             text=True, cwd=REPO_ROOT, timeout=600)
+    assert process.returncode == 0, process.stderr
+    for index, (_, _, expected) in enumerate(BAD_CONFIGURATIONS):
+        section = process.stderr.split(f'=== {index} begin')[1].split(f'=== {index} exit')
+        assert len(section) == 2, process.stderr
+        log, code = section[0], section[1].split()[0]
+        assert code == '1', (expected, log)
+        assert 'cannot start' in log and expected in log, log
+        assert 'Traceback' not in log
+
+
+def test_sigterm_stops_the_node_cleanly(lmo_root, weights, tmp_path):
     log = NodeLog(tmp_path / 'node.log')
     params = write_params(tmp_path / 'params.yaml', lmo_root, weights, objects=['ape'])
     process = subprocess.Popen([sys.executable, '-m', 'bbpose_ros.ros.node', '--ros-args',
                                 '--params-file', str(params)], stderr=log.file)
     assert log.wait_for('serving ape'), log.path.read_text()
     process.send_signal(signal.SIGTERM)
-    start_s = time.monotonic()
-    code = process.wait(10.0)
-    assert time.monotonic() - start_s < 2.0
-    assert code == 0
+    # How long a stop takes is measured by ``bbpose bench --graph`` (node.stop_s).
+    assert process.wait(TIMEOUT_S) == 0
+    assert 'Traceback' not in log.path.read_text()

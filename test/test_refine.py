@@ -23,10 +23,12 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import exp_so3, perturb_pose, rotation_error_deg
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate, PosePipeline
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
-from bbpose_ros.core.refine.region_refiner import RefinerConfig, RegionRefiner
+from bbpose_ros.core.refine.color_histograms import color_bins
+from bbpose_ros.core.refine.refiner import refine_poses, RefinerConfig
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at_rotation,
                                                     ViewpointModel)
@@ -34,6 +36,12 @@ from bbpose_ros.core.render.reference import render_silhouette
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 NAMES = ('ape', 'driller', 'duck', 'holepuncher')
+
+
+def refine_one(model, image, camera, rotation, translation, config=None):
+    """Refine one pose of one object with ``refine_poses``; its Refinement."""
+    return refine_poses(color_bins(image), camera, [model], [rotation], [translation],
+                        config or RefinerConfig())[0]
 
 
 @pytest.fixture(scope='module')
@@ -120,7 +128,7 @@ def test_refiner_converges_on_renders(viewpoint_models, lmo_models, name, seed):
     image = rendered_scene(model, rotation, translation, seed)
     start_r, start_t = perturb_pose(rotation, translation, 10.0, 0.020, rng)
     config = dataclasses.replace(RefinerConfig(), iterations=20)
-    result = RegionRefiner(models[name], config).refine(image, CAMERA, start_r, start_t)
+    result = refine_one(models[name], image, CAMERA, start_r, start_t, config)
     assert result.ok
     assert rotation_error_deg(result.rotation, rotation) < 1.0
     assert np.linalg.norm(result.translation - translation) < 0.005
@@ -130,7 +138,6 @@ def test_refiner_converges_on_renders(viewpoint_models, lmo_models, name, seed):
 def test_refiner_improves_perturbed_truth_on_real_frames(viewpoint_models, lmo_models,
                                                          lmo_frames):
     models, _ = viewpoint_models
-    refiner = PoseRefiner(models)
     rng = np.random.default_rng(0)
     before, after = [], []
     for frame in lmo_frames[:25]:
@@ -140,8 +147,8 @@ def test_refiner_improves_perturbed_truth_on_real_frames(viewpoint_models, lmo_m
                 continue
             start_r, start_t = perturb_pose(instance.rotation, instance.translation, 15.0,
                                             0.020, rng)
-            refined = refiner.refine_one(image, frame.camera, instance.object_name, start_r,
-                                         start_t)
+            refined = refine_one(models[instance.object_name], image, frame.camera, start_r,
+                                 start_t)
             symmetries = np.concatenate([np.eye(4)[None],
                                          lmo_models[instance.object_name].symmetries])
             before.append(cm_deg_errors(start_r, start_t, instance.rotation,
@@ -160,16 +167,16 @@ def test_bad_starts_are_reported_not_raised(viewpoint_models, lmo_frames):
     models, _ = viewpoint_models
     frame = lmo_frames[0]
     image = frame.load_image()
-    refiner = RegionRefiner(models['ape'])
-    behind = refiner.refine(image, frame.camera, np.eye(3), [0.0, 0.0, -0.5])
+    ape = models['ape']
+    behind = refine_one(ape, image, frame.camera, np.eye(3), [0.0, 0.0, -0.5])
     assert behind.status == 'behind_camera' and behind.score == 0.0
-    outside = refiner.refine(image, frame.camera, np.eye(3), [5.0, 5.0, 0.8])
+    outside = refine_one(ape, image, frame.camera, np.eye(3), [5.0, 5.0, 0.8])
     assert outside.status == 'outside_image' and outside.score == 0.0
     np.testing.assert_array_equal(outside.translation, [5.0, 5.0, 0.8])   # given back
-    nan = refiner.refine(image, frame.camera, np.full((3, 3), np.nan), [0.0, 0.0, 0.8])
+    nan = refine_one(ape, image, frame.camera, np.full((3, 3), np.nan), [0.0, 0.0, 0.8])
     assert nan.status == 'behind_camera'
     with pytest.raises(InputError, match='does not match'):
-        refiner.refine(image[:100], frame.camera, np.eye(3), [0.0, 0.0, 0.8])
+        refine_one(ape, image[:100], frame.camera, np.eye(3), [0.0, 0.0, 0.8])
     with pytest.raises(InputError, match='histogram_rate'):
         RefinerConfig(histogram_rate=2.0)
 
@@ -235,8 +242,7 @@ def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models)
     detection = Detection('duck', 1.0, np.array([0.0, 0.0, 99.0, 99.0]))
     candidates = [PoseEstimate(detection, exp_so3(axis) @ rotation, translation)
                   for axis in ([0.05, 0.0, 0.0], [0.0, 0.05, 0.0])]
-    alone = RegionRefiner(models['duck']).refine(crop, window, candidates[0].rotation,
-                                                 translation)
+    alone = refine_one(models['duck'], crop, window, candidates[0].rotation, translation)
     assert alone.status == 'too_few_lines'
     screened = PoseRefiner(models, screening_iterations=3).best_of(crop, window, [candidates])
     assert len(screened) == 1 and screened[0].refinement_score == 0.0
@@ -293,6 +299,6 @@ def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, l
     frame = lmo_frames[0]
     pipeline = PosePipeline({n: lmo_models[n] for n in models}, lambda image: [],
                             lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models),
-                            refine_hypotheses=2)
+                            candidates=2)
     assert pipeline.estimate(frame.load_image(), frame.camera).poses == []
     assert PoseRefiner(models)(frame.load_image(), frame.camera, []) == []

@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.render import Draw, Lighting, mask_box_uv, MeshRenderer, \
-    opengl_projection, projected_box_uv, RenderMesh
+from bbpose_ros.core.geometry.projection import projected_box_uv
+from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, opengl_projection, RenderMesh
 from bbpose_ros.core.render.reference import render_depth, render_silhouette
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
@@ -28,14 +29,10 @@ NAMES = ('ape', 'driller')
 
 
 @pytest.fixture(scope='module')
-def renderer(lmo_models):
-    """Build a MeshRenderer of the ape and the driller; skip when EGL is unavailable."""
+def renderer(egl, lmo_models):
+    """Build a MeshRenderer of the ape and the driller."""
     renderer = MeshRenderer(CAMERA, {name: RenderMesh.from_object_model(lmo_models[name])
                                      for name in NAMES})
-    try:
-        renderer.render([], Lighting())
-    except RuntimeError as err:
-        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')
     yield renderer
     renderer.close()
 

@@ -24,8 +24,8 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
-from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
+from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.options import PipelineOptions
 
 FRAMES = 3
 
@@ -59,9 +59,8 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert report['tracking']['on']['frames'] == {'sent': FRAMES, 'answered': FRAMES}
     assert 'tracking on: ADD(-S)' in result.stdout
 
-    offline = evaluate(frames, load_pipeline(lmo_models, *weights, score_threshold=0.0,
-                                             refine=True,
-                                             refine_hypotheses=DEFAULT_REFINE_HYPOTHESES),
+    offline = evaluate(frames, load_pipeline(lmo_models, PipelineOptions(score_threshold=0.0),
+                                             *weights),
                        boxes='detector', rotation='estimator', progress=False)
     for name, values in offline['objects'].items():
         for key in ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px'):

@@ -20,7 +20,7 @@ import numpy as np
 from bbpose_ros.core import viz
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import score_frame, summarize_objects
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
+from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
 
 def test_charts_and_overlays_are_written(lmo_frames, lmo_models, tmp_path):

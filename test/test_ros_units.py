@@ -15,7 +15,6 @@
 """The ROS adapter's parts without a graph: pairing, throttling, conversions, parameters."""
 
 import dataclasses
-import inspect
 from pathlib import Path
 import re
 import threading
@@ -33,16 +32,16 @@ import yaml
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
-from bbpose_ros.core.pipeline.estimators import load_pipeline
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
+from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.tracking import TrackingConfig
+from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
 from bbpose_ros.ros.params import APPLIES, check_value, declare_parameters, PARAMETERS
 from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
 from bbpose_ros.ros.params import TRACKING_OPTIONS
-from bbpose_ros.ros.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -219,6 +218,9 @@ def test_the_yaml_documents_every_parameter_and_when_it_is_read():
                        and line.rstrip().endswith('.'))
         assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
         check_value(name, values[name])
+    # The file shows the defaults (PipelineOptions' and the table's); it sets one other value.
+    assert {name for name, spec in PARAMETERS.items()
+            if values[name] != spec.default} == {'inference_threads'}
 
 
 def test_stamp_checker_tells_repeated_backward_and_future_stamps():
@@ -234,10 +236,16 @@ def test_stamp_checker_tells_repeated_backward_and_future_stamps():
     assert kind == FUTURE and '5.000 s ahead' in text
 
 
-def test_pipeline_parameters_are_load_pipeline_keywords():
-    keywords = set(inspect.signature(load_pipeline).parameters)
+def test_pipeline_parameters_are_pipeline_options_with_their_defaults():
+    options = PipelineOptions()
     pipeline = {name for name, spec in PARAMETERS.items() if spec.applies == 'pipeline'}
-    assert pipeline - {'objects'} - set(TRACKING_OPTIONS) <= keywords
+    with_option = {name for name, spec in PARAMETERS.items() if spec.option is not None}
+    assert pipeline - {'objects'} - set(TRACKING_OPTIONS) <= with_option
+    for name in with_option:
+        assert PARAMETERS[name].default == getattr(options, PARAMETERS[name].option), name
+    # Every option is a parameter: the node can set all that eval and bench can.
+    assert {spec.option for spec in PARAMETERS.values() if spec.option} == \
+        {f.name for f in dataclasses.fields(PipelineOptions)}
     # The tracking ones are TrackingConfig's fields.
     fields = {f.name for f in dataclasses.fields(TrackingConfig)}
     assert {o for o in TRACKING_OPTIONS.values() if o is not None} <= fields

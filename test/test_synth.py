@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
-from bbpose_ros.core.render import mask_box_uv, projected_box_uv
 from bbpose_ros.core.render.reference import render_silhouette
 from bbpose_ros.core.synth import SynthConfig, SyntheticSample, SyntheticScenes
 from bbpose_ros.core.synth.placement import viewpoint_angles
@@ -39,13 +40,9 @@ def make_scenes(lmo_models, seed, config=None):
 
 
 @pytest.fixture(scope='module')
-def scenes(lmo_models):
-    """Build the scenes of seed 7; skip when EGL is unavailable."""
+def scenes(egl, lmo_models):
+    """Build the scenes of seed 7."""
     scenes = make_scenes(lmo_models, 7)
-    try:
-        scenes.sample(0)
-    except RuntimeError as err:
-        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')
     yield scenes
     scenes.close()
 

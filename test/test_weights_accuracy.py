@@ -24,9 +24,10 @@ import pytest
 
 from bbpose_ros.core.eval.detection import evaluate_detections
 from bbpose_ros.core.eval.evaluation import evaluate
-from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.pipeline.pose_pipeline import FrameResult
+from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.pipeline.poses import FrameResult
 
 FRAMES = 12
 
@@ -39,13 +40,14 @@ ROTATION_MEDIAN_CEILING_DEG = 60.0
 
 @pytest.fixture(scope='module')
 def pipeline(lmo_models):
-    return load_pipeline(lmo_models, threads=2)
+    return load_pipeline(lmo_models, PipelineOptions(refine=False, threads=2))
 
 
 def test_hypotheses_are_chosen_by_the_box_unless_the_weight_is_zero(pipeline, lmo_models):
     assert pipeline.rotation_estimator.all_hypotheses
     assert pipeline.hypothesis_selector.weight == DEFAULT_BOX_CONSISTENCY_WEIGHT
-    plain = load_pipeline(lmo_models, threads=2, box_consistency_weight=0.0)
+    plain = load_pipeline(lmo_models, PipelineOptions(refine=False, threads=2,
+                                                      box_consistency_weight=0.0))
     assert not plain.rotation_estimator.all_hypotheses
 
 

@@ -26,6 +26,7 @@ from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
+from bbpose_ros.core.stamps import stamp_to_ns
 
 
 @dataclass
@@ -68,7 +69,7 @@ def read_bag_frames(path, image_topic=topics.IMAGE_TOPIC,
                     topics.object_of_ground_truth_topic(connection.topic) is None:
                 continue
             message = topics.TYPESTORE.deserialize_cdr(raw, connection.msgtype)
-            stamp = topics.stamp_to_ns(message.header.stamp)
+            stamp = stamp_to_ns(message.header.stamp)
             if connection.topic == image_topic:
                 images[stamp] = message
             elif connection.topic == camera_info_topic:

@@ -53,11 +53,6 @@ def header(stamp_ns, frame_id):
     return types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
 
 
-def stamp_to_ns(stamp):
-    """Nanoseconds of a builtin_interfaces/Time."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def pose_message(stamp_ns, frame_id, rotation, translation_m):
     """geometry_msgs/PoseStamped for x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
     types = TYPESTORE.types

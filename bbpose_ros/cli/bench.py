@@ -29,7 +29,7 @@ from std_msgs.msg import Header
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
-from bbpose_ros.cli.graph.benchmark import camera_messages, run_graph
+from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
@@ -38,7 +38,7 @@ from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros import conversions
-from bbpose_ros.ros.estimator import build_estimator
+from bbpose_ros.ros.node_pipeline import build_node_pipeline
 from bbpose_ros.ros.params import read_config, read_params_file
 
 
@@ -96,19 +96,21 @@ def node_overrides(args):
 
 def bench_frames(frames, values, warmup):
     """Time the stages on ``frames`` with the pipeline the node builds from ``values``."""
-    estimator = build_estimator(read_config(values))
-    pipeline = estimator.pipeline
+    config = read_config(values)
+    built = build_node_pipeline(config)
+    pipeline = built.pipeline
     if isinstance(pipeline, PoseTracker):     # the stages are timed on the pipeline itself
         pipeline = pipeline.pipeline
     header = Header(frame_id=topics.DEFAULT_FRAME_ID)
     report = benchmark_frames(
         frames, pipeline, lambda image: conversions.rgb_to_image(header, image),
         conversions.image_to_rgb,
-        lambda poses: conversions.frame_messages(header, poses, estimator.markers),
+        lambda poses: conversions.frame_messages(header, poses, built.markers),
         warmup=warmup)
-    report.update(inference_backend=values['inference_backend'],
-                  inference_threads=values['inference_threads'] or os.cpu_count(),
-                  refine_hypotheses=values['refine_hypotheses'] if values['refine'] else 0)
+    options = config.options
+    report.update(inference_backend=options.backend,
+                  inference_threads=options.threads or os.cpu_count(),
+                  refine_hypotheses=options.refine_hypotheses if options.refine else 0)
     return report
 
 
@@ -124,6 +126,7 @@ def bench_graph(args, frames, values, overrides):
                              settle_s=rss_settle_s(args.duration))
     report.update(rate_hz=args.rate, duration_s=args.duration,
                   node_timings_ms=graph.recording.timings_ms)
+    report['node'].update(stop_s=graph.stop_s, exit_code=graph.exit_code)
     return report
 
 
@@ -161,7 +164,8 @@ def format_graph(report):
              f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_percent"]:+.1f} %)'
              + ('' if node['rss_settled_mb'] is None else
                 f'; from {node["rss_settled_at_s"]:.0f} s on {node["rss_settled_mb"]:.0f} -> '
-                f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_after_settle_percent"]:+.1f} %)')]
+                f'{node["rss_end_mb"]:.0f} MB ({node["rss_growth_after_settle_percent"]:+.1f} %)'),
+             f'node stop (SIGINT -> exit): {node["stop_s"]:.2f} s, exit code {node["exit_code"]}']
     if len(report['per_minute']) > 1:
         lines.append(f'{"minute":>6s}{"published":>11s}{"answered":>10s}{"median ms":>11s}'
                      f'{"p95 ms":>9s}{"RSS MB":>9s}')

@@ -20,8 +20,6 @@ import os
 from pathlib import Path
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
-from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
 
 
 def add_dataset_argument(parser):
@@ -66,25 +64,3 @@ def add_frames_argument(parser):
     """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
     parser.add_argument('--max-frames', type=int, default=None,
                         help='use only the first N frames (default: all)')
-
-
-def add_refinement_arguments(parser):
-    """Add ``--refine/--no-refine`` and ``--refine-min-score`` (the refinement stage)."""
-    parser.add_argument('--refine', action=argparse.BooleanOptionalAction, default=True,
-                        help='refine each pose by aligning the silhouette with the image '
-                             '(default: on)')
-    parser.add_argument('--refine-min-score', type=float, default=0.0,
-                        help='drop refined poses scored below this, 0..1 (default %(default)s)')
-    parser.add_argument('--refine-hypotheses', type=int, default=DEFAULT_REFINE_HYPOTHESES,
-                        help="refine each detection's K best-ranked rotation hypotheses and "
-                             'keep the best-scored (default %(default)s)')
-
-
-def load_refiner(args, models):
-    """Build the PoseRefiner that ``add_refinement_arguments``' options ask for, or None."""
-    if args.refine_hypotheses < 1:
-        raise InputError(f'--refine-hypotheses must be at least 1, got {args.refine_hypotheses}')
-    if not args.refine:
-        return None
-    from bbpose_ros.core.pipeline.refinement import load_pose_refiner
-    return load_pose_refiner(models, min_score=args.refine_min_score)

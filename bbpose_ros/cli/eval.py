@@ -14,17 +14,17 @@
 
 """``bbpose eval``: score the pipeline on a BOP dataset folder and write the report JSON."""
 
+import argparse
 from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
-                                   add_objects_argument, add_refinement_arguments, float_pair,
-                                   load_refiner)
+                                   add_objects_argument, float_pair)
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
 
@@ -46,12 +46,7 @@ def add_parser(subparsers):
                         help='detector weight file (default: the shipped one)')
     parser.add_argument('--qnet-weights', type=Path, default=None,
                         help='Q-Net weight file (default: the shipped one)')
-    parser.add_argument('--box-consistency-weight', type=float,
-                        default=DEFAULT_BOX_CONSISTENCY_WEIGHT,
-                        help='how much the Bounding Box Equation misfit counts in choosing '
-                             'among Q-Net hypotheses; 0: the best-scored one '
-                             '(default %(default)s)')
-    add_refinement_arguments(parser)
+    add_pipeline_arguments(parser)
     parser.add_argument('--perturb-gt', type=float_pair, action='append', default=None,
                         metavar='DEG,MM',
                         help='with --boxes gt --rotation gt: start each pose from the ground '
@@ -74,15 +69,47 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
+def add_pipeline_arguments(parser):
+    """Add the PipelineOptions that an evaluation varies, with their defaults."""
+    defaults = PipelineOptions()
+    parser.add_argument('--box-consistency-weight', type=float,
+                        default=defaults.box_consistency_weight,
+                        help='how much the Bounding Box Equation misfit counts in choosing '
+                             'among Q-Net hypotheses; 0: the best-scored one '
+                             '(default %(default)s)')
+    parser.add_argument('--refine', action=argparse.BooleanOptionalAction,
+                        default=defaults.refine,
+                        help='refine each pose by aligning the silhouette with the image '
+                             '(default: %(default)s)')
+    parser.add_argument('--refine-min-score', type=float, default=defaults.refine_min_score,
+                        help='drop refined poses scored below this, 0..1 (default %(default)s)')
+    parser.add_argument('--refine-hypotheses', type=int, default=defaults.refine_hypotheses,
+                        help="refine each detection's K best-ranked rotation hypotheses and "
+                             'keep the best-scored (default %(default)s)')
+
+
+def pipeline_options(args):
+    """Return the PipelineOptions of ``add_pipeline_arguments``' options (InputError if bad)."""
+    try:
+        return PipelineOptions(box_consistency_weight=args.box_consistency_weight,
+                               refine=args.refine, refine_min_score=args.refine_min_score,
+                               refine_hypotheses=args.refine_hypotheses)
+    except InputError as err:
+        option, _, reason = str(err).partition(': ')
+        raise InputError(f'--{option.replace("_", "-")}: {reason}') from err
+
+
 def build_pipeline(models, args):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
+    options = pipeline_options(args)
     if args.boxes == 'gt' and args.rotation == 'gt':
-        return PosePipeline(models, refiner=load_refiner(args, models))
-    from bbpose_ros.core.pipeline.estimators import load_pipeline
-    return load_pipeline(models, args.detector_weights, args.qnet_weights,
-                         box_consistency_weight=args.box_consistency_weight,
-                         refine=args.refine, refine_hypotheses=args.refine_hypotheses,
-                         refine_min_score=args.refine_min_score)
+        refiner = None
+        if options.refine:
+            from bbpose_ros.core.pipeline.refinement import load_pose_refiner
+            refiner = load_pose_refiner(models, min_score=options.refine_min_score)
+        return PosePipeline(models, refiner=refiner)
+    from bbpose_ros.core.pipeline.loader import load_pipeline
+    return load_pipeline(models, options, args.detector_weights, args.qnet_weights)
 
 
 class RecordingDetector:

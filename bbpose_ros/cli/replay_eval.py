@@ -40,11 +40,11 @@ from bbpose_ros.core.data.bop import GroundTruthInstance
 from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
-from bbpose_ros.core.eval.evaluation import format_report, projected_box, score_frame
+from bbpose_ros.core.eval.evaluation import format_report, pose_box, score_frame
 from bbpose_ros.core.eval.evaluation import summarize_objects
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.latency import timing_summary
-from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
+from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.ros.params import package_config_file, read_params_file
 from bbpose_ros.ros.params import resolve_dataset_dir
 
@@ -89,7 +89,7 @@ def ground_truth_instances(frame, models):
     instances = []
     for name, poses in frame.ground_truth.items():
         for rotation, translation in poses if name in models else ():
-            box = projected_box(models[name], frame.camera, rotation, translation)
+            box = pose_box(models[name], frame.camera, rotation, translation)
             instances.append(GroundTruthInstance(name, models[name].obj_id, rotation,
                                                  translation, box, box, 1.0))
     return instances
@@ -97,8 +97,8 @@ def ground_truth_instances(frame, models):
 
 def node_estimates(entries, models, camera):
     """Make PoseEstimates of a frame's recorded (name, rotation, translation) poses."""
-    return [PoseEstimate(Detection(name, 1.0, projected_box(models[name], camera, rotation,
-                                                            translation)),
+    return [PoseEstimate(Detection(name, 1.0, pose_box(models[name], camera, rotation,
+                                                       translation)),
                          rotation, translation)
             for name, rotation, translation in entries]
 

@@ -17,12 +17,40 @@
 Latency statistics of per-frame stage timings, in milliseconds.
 
 One computation serves the node's diagnostics, the evaluation report and the benchmarks;
-``timing_summary`` is the compact form of the reports and of /diagnostics.
+``timing_summary`` is the compact form of the reports and of /diagnostics. ``StageTimer``
+measures the stages of one frame, for the pipeline, the tracker and the evaluation alike.
 """
 
+import time
 from typing import Iterable, Mapping
 
 import numpy as np
+
+
+class StageTimer:
+    """
+    Wall-clock milliseconds of the stages of one frame, ``perf_counter`` based.
+
+    ``lap(stage)`` records the time since the previous lap (or the timer's start) under
+    ``stage``; ``total()`` adds 'total', the time since the start, and returns
+    ``timings_ms`` ({stage: ms}, in the order the stages ran).
+    """
+
+    def __init__(self) -> None:
+        self.timings_ms: dict[str, float] = {}
+        self._start = self._last = time.perf_counter()
+
+    def lap(self, stage: str | None) -> None:
+        """Record the time since the last lap under ``stage`` (None: skip it unrecorded)."""
+        now = time.perf_counter()
+        if stage is not None:
+            self.timings_ms[stage] = (now - self._last) * 1e3
+        self._last = now
+
+    def total(self) -> dict[str, float]:
+        """Record and return the timings with 'total', the time since the start."""
+        self.timings_ms['total'] = (time.perf_counter() - self._start) * 1e3
+        return self.timings_ms
 
 
 def latency_stats(values_ms: Iterable[float]) -> dict:

@@ -34,7 +34,7 @@ from bbpose_ros.core.data.models import BOX_EDGES, ObjectModel
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 if TYPE_CHECKING:
-    from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
+    from bbpose_ros.core.pipeline.poses import PoseEstimate
 
 
 # Kelly's colours of maximum contrast, RGB 0..255, one per LineMod object id (1..15); an

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from builtin_interfaces.msg import Duration, Time
+from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
 import numpy as np
 import numpy.typing as npt
@@ -34,16 +34,11 @@ from visualization_msgs.msg import Marker, MarkerArray
 from bbpose_ros.core.data.image_encoding import decode_image, encode_rgb8
 from bbpose_ros.core.data.models import BOX_EDGES, ObjectModel
 from bbpose_ros.core.geometry.rotations import matrix_to_quat_wxyz, wxyz_to_xyzw
-from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
+from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.viz import object_color
 
 BOX_LINE_WIDTH_M = 0.003
 LABEL_HEIGHT_M = 0.02
-
-
-def stamp_to_ns(stamp: Time) -> int:
-    """Nanoseconds of a builtin_interfaces/Time."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def image_to_rgb(image: Image, max_pixels: int | None = None) -> np.ndarray:

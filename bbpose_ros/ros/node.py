@@ -15,12 +15,14 @@
 """
 ``bbpose_node``: Image + CameraInfo in; poses, markers, a debug image and diagnostics out.
 
-A managed (lifecycle) node. ``configure`` checks the parameters and loads the objects and
-the networks (a failure is a failed transition, its reason logged, and the node stays
-unconfigured); ``activate`` creates the publishers, the subscriptions and the worker;
-``deactivate`` stops them; ``cleanup`` frees the pipeline. With ``autostart`` (default)
-the node configures and activates itself at start and exits with code 1 when it cannot.
-``/diagnostics`` is published in every state.
+A managed (lifecycle) node in the shape of ros2/demos' ``lifecycle_py``: every attribute is
+declared in ``__init__``; ``configure`` checks the parameters, loads the objects and the
+networks and creates the (lifecycle) publishers (a failure is a failed transition, its
+reason logged, and the node stays unconfigured); ``activate`` enables the publishers and
+creates the subscriptions and the worker; ``deactivate`` undoes that; ``cleanup`` frees the
+pipeline and the publishers. With ``autostart`` (default) the node configures and activates
+itself at start and exits with code 1 when it cannot. ``/diagnostics`` is published in
+every state.
 
 Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8) and
 ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within ``sync_slop``.
@@ -33,7 +35,12 @@ Publications, stamped with the image's header (stamp and frame_id):
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
 
 The subscription callbacks only decode and pair; a worker thread runs the pipeline on the
-newest pair, so frames arriving while it is busy replace each other instead of queueing.
+newest pair, so frames arriving while it is busy replace each other instead of queueing. A
+run-time set of a ``pipeline`` parameter is checked in the parameter callback and built by
+a rebuild thread, off the executor: the node keeps taking and answering frames with the
+pipeline it has and swaps the new one in when it is ready (a build that fails sets the
+parameters back and says why). An image stamped before the previous one (a bag restarted,
+a camera reset) resets the tracker.
 """
 
 from collections.abc import Sequence
@@ -50,23 +57,30 @@ import rclpy
 from rclpy.event_handler import QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState
+from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import qos_profile_system_default, QoSPolicyKind
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
+from bbpose_ros.core.data.models import bop_object_ids
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
+from bbpose_ros.core.pipeline.poses import PoseEstimate
+from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
-from bbpose_ros.ros.estimator import build_estimator
+from bbpose_ros.ros.node_pipeline import build_node_pipeline, NodePipeline
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
-from bbpose_ros.ros.params import check_value, declare_parameters, NODE_NAME
-from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
-from bbpose_ros.ros.stamps import REPEATED, StampChecker
+from bbpose_ros.ros.params import check_value, checked_options, declare_parameters, NODE_NAME
+from bbpose_ros.ros.params import NodeConfig, parameter_values, PARAMETERS, read_config
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -74,7 +88,8 @@ DIAGNOSTICS_PERIOD_S = 1.0
 # repair of a lost sample (Fast DDS heartbeat period: 3 s), which a burst of large images
 # can make a CameraInfo wait for; a newer image displaces the waiting one anyway.
 UNPAIRED_TIMEOUT_S = 5.0
-WORKER_JOIN_TIMEOUT_S = 1.0
+# A stop waits this long for the worker to finish the frame in hand (one frame's work).
+WORKER_JOIN_TIMEOUT_S = 5.0
 # How far ahead of this node's clock an image stamp may be before it is reported: clocks of
 # synchronised machines agree much better, a camera on its own clock is far off.
 FUTURE_STAMP_TOLERANCE_NS = 1_000_000_000
@@ -84,11 +99,17 @@ FAILURE = TransitionCallbackReturn.FAILURE
 
 @dataclass(frozen=True)
 class Frame:
-    """A decoded image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt."""
+    """
+    A decoded image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt.
+
+    ``stream`` counts the backward stamp jumps before it: frames of one stream follow
+    each other in time, so a tracker resets when the stream changes.
+    """
 
     header: Header
     image_rgb: np.ndarray
     received_s: float
+    stream: int
 
 
 class BBPoseNode(LifecycleNode):
@@ -103,39 +124,61 @@ class BBPoseNode(LifecycleNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         declare_parameters(self)
-        self.config = None
-        self.estimator = None
-        self.failure = None          # the reason of the last failed transition
+        # Set by configure, freed by cleanup; swapped together by a run-time rebuild.
+        self.config: NodeConfig | None = None
+        self.pipeline: NodePipeline | None = None
+        self.failure: str | None = None          # the reason of the last failed transition
         self.stats = NodeStats()
         self._throttle = KeyedThrottle()
+        # Lifecycle publishers: made by configure, enabled by activate.
+        self._pose_pubs: dict[str, LifecyclePublisher] = {}
+        self._markers_pub: LifecyclePublisher | None = None
+        self._debug_pub: LifecyclePublisher | None = None
+        # Made by activate, destroyed by deactivate.
+        self._inputs: list[Subscription] = []
+        self._worker: threading.Thread | None = None
         self._serving = False
-        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
-                                                      qos_profile_system_default)
+        self._pairer = StampPairer()
+        self._slot = LatestSlot()
+        self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
+        self._stream = 0                          # backward stamp jumps seen
+        self._rectifier = Rectifier()             # the worker's
+        # Run-time rebuilds: changes waiting for the rebuild thread, under the lock.
+        self._rebuild_lock = threading.Lock()
+        self._pending_changes: dict[str, Any] = {}
+        self._rebuilder: threading.Thread | None = None
+        self._generation = 0                      # configures so far: a rebuild's epoch
+        self._diagnostics_pub: Publisher = self.create_publisher(
+            DiagnosticArray, '/diagnostics', qos_profile_system_default)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
         self.add_pre_set_parameters_callback(self._before_set_parameters)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Check the parameters and load the objects and networks."""
+        """Check the parameters, load the objects and networks, create the publishers."""
         try:
             config = read_config(parameter_values(self))
-            self.estimator = build_estimator(config, self.get_logger().info)
+            pipeline = build_node_pipeline(config, self.get_logger().info)
         except Exception as err:  # noqa: B902 - a failed configure says why, whatever failed
             return self._fail('configure', _reason(err))
-        self.config, self.failure = config, None
+        with self._rebuild_lock:
+            self.config, self.pipeline, self.failure = config, pipeline, None
+            self._generation += 1
+        self._pose_pubs = {}
+        self._add_pose_publishers(config.objects)
+        self._markers_pub = self.create_lifecycle_publisher(MarkerArray, '~/markers', 10)
+        self._debug_pub = self.create_lifecycle_publisher(Image, '~/debug_image', 1)
         self.get_logger().info(f'configured: {", ".join(config.objects)}')
         return SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Create the publishers, the subscriptions and the worker thread."""
+        """Enable the publishers; create the subscriptions and the worker thread."""
+        enabled = super().on_activate(state)     # first: a frame answered is published
+        if enabled != SUCCESS:
+            return enabled
         self._pairer = StampPairer()
         self._slot = LatestSlot()
         self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
-        self._rectifier = Rectifier()      # the worker's
-        self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
-                           for name in self.config.objects}
-        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
-        self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
         self._inputs = [
             self.create_subscription(cls, topic, callback, self.config.qos,
                                      event_callbacks=self._input_events(topic))
@@ -151,14 +194,14 @@ class BBPoseNode(LifecycleNode):
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop taking frames, finish the current one, remove the topics."""
+        """Stop taking frames, finish the current one, disable the publishers."""
         self._stop_serving()
         self.get_logger().info('inactive')
-        return SUCCESS
+        return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Free the pipeline; the parameters are read again at the next configure."""
-        self.config = self.estimator = None
+        """Free the pipeline and the publishers; the parameters are read again at configure."""
+        self._release()
         return SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -176,25 +219,42 @@ class BBPoseNode(LifecycleNode):
         self._release()
         super().destroy_node()
 
-    def _fail(self, transition, err):
+    def _fail(self, transition: str, err: str) -> TransitionCallbackReturn:
         self.failure = f'{transition} failed: {err}'
         self.get_logger().error(self.failure)
         return FAILURE
 
-    def _release(self):
+    def _release(self) -> None:
+        """Stop serving, forget the pipeline (a rebuild under way is dropped), free topics."""
         self._stop_serving()
-        self.config = self.estimator = None
+        with self._rebuild_lock:
+            self.config = self.pipeline = None
+            self._pending_changes = {}
+            self._generation += 1
+        publishers = [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]
+        for publisher in publishers:
+            if publisher is not None:
+                self.destroy_lifecycle_publisher(publisher)
+        self._pose_pubs, self._markers_pub, self._debug_pub = {}, None, None
 
-    def _stop_serving(self):
+    def _stop_serving(self) -> None:
         if not self._serving:
             return
         self._serving = False
         for subscription in self._inputs:
             self.destroy_subscription(subscription)
+        self._inputs = []
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
-        for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]:
-            self.destroy_publisher(publisher)
+
+    def _add_pose_publishers(self, names: Sequence[str]) -> None:
+        """Create the pose publishers of new object names, enabled when serving."""
+        added = {name: self.create_lifecycle_publisher(PoseStamped, f'~/{name}/pose', 10)
+                 for name in names if name not in self._pose_pubs}
+        if self._serving:
+            for publisher in added.values():
+                publisher.on_activate(None)     # rclpy's managed entities ignore the state
+        self._pose_pubs = {**self._pose_pubs, **added}    # swapped whole: the worker reads it
 
     def _before_set_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
         """
@@ -210,23 +270,35 @@ class BBPoseNode(LifecycleNode):
         return parameters
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Refuse a bad value with its reason; rebuild the pipeline for ``pipeline`` ones."""
+        """
+        Refuse a bad value with its reason; hand ``pipeline`` changes to the rebuild thread.
+
+        Everything that can be checked without building is checked here (each value, their
+        combinations, the object names against the dataset), so a set that is accepted
+        rarely fails to build.
+        """
         for parameter in parameters:
             reason = self._refusal(parameter)
             if reason is not None:
                 return SetParametersResult(successful=False, reason=reason)
         changes = {p.name: p.value for p in parameters
                    if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'}
+        if self.config is not None:
+            with self._rebuild_lock:      # what the pipeline has already needs no rebuild
+                changes = {name: value for name, value in changes.items()
+                           if value != self.config.values[name]
+                           or name in self._pending_changes}
         if changes and self.config is not None:
             try:
-                self._rebuild(changes)
-            except Exception as err:  # noqa: B902 - a failed rebuild refuses the set, says why
-                self._warn('parameters_refused', ' '.join(changes),
-                           f'set refused: {_reason(err)}')
-                return SetParametersResult(successful=False, reason=_reason(err))
+                self._check_changes(changes)
+            except InputError as err:
+                self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
+                return SetParametersResult(successful=False, reason=str(err))
+            self._add_pose_publishers(changes.get('objects', ()))
+            self._request_rebuild(changes)
         return SetParametersResult(successful=True)
 
-    def _refusal(self, parameter):
+    def _refusal(self, parameter: Parameter) -> str | None:
         """Return why ``parameter``'s new value is refused now, or None."""
         spec = PARAMETERS.get(parameter.name)
         if spec is None:       # rclpy's own (use_sim_time)
@@ -242,17 +314,59 @@ class BBPoseNode(LifecycleNode):
             return str(err)
         return None
 
-    def _rebuild(self, changes):
-        """Build the pipeline with ``changes`` ({name: value}) and swap it in."""
-        config = self.config.updated(changes)
-        estimator = build_estimator(config, self.get_logger().info)
-        if self._serving:
-            for name in config.objects:
-                if name not in self._pose_pubs:
-                    self._pose_pubs[name] = self.create_publisher(PoseStamped,
-                                                                  f'~/{name}/pose', 10)
-        self.config, self.estimator = config, estimator
-        self.get_logger().info(f'pipeline rebuilt for {", ".join(changes)}')
+    def _check_changes(self, changes: dict[str, Any]) -> None:
+        """Raise InputError when ``changes`` do not go with the other parameters' values."""
+        checked_options({**parameter_values(self), **changes})
+        if 'objects' in changes:
+            known = bop_object_ids(self.config.dataset_dir)
+            unknown = [name for name in changes['objects'] if name not in known]
+            if unknown:
+                raise InputError(f'parameter objects: {", ".join(unknown)} not in '
+                                 f'{self.config.dataset_dir} (known: {", ".join(known)})')
+
+    def _request_rebuild(self, changes: dict[str, Any]) -> None:
+        """Queue ``changes`` for the rebuild thread; start it unless it is running."""
+        with self._rebuild_lock:
+            self._pending_changes.update(changes)
+            if self._rebuilder is None:
+                self._rebuilder = threading.Thread(target=self._rebuild, name='bbpose_rebuild',
+                                                   daemon=True)
+                self._rebuilder.start()
+
+    def _rebuild(self) -> None:
+        """Rebuild thread: build the pipeline with the queued changes and swap it in."""
+        while True:
+            with self._rebuild_lock:
+                changes, self._pending_changes = self._pending_changes, {}
+                if not changes or self.config is None:
+                    self._rebuilder = None
+                    return
+                config, generation = self.config.updated(changes), self._generation
+            self.get_logger().info(f'rebuilding the pipeline for {", ".join(changes)}; '
+                                   'frames are answered with the current one meanwhile')
+            try:
+                pipeline = build_node_pipeline(config, self.get_logger().info)
+            except Exception as err:  # noqa: B902 - a failed rebuild sets the values back
+                self._undo(changes, _reason(err))
+                continue
+            with self._rebuild_lock:
+                if generation != self._generation:      # cleaned up or reconfigured meanwhile
+                    continue
+                self.config, self.pipeline = config, pipeline
+            self.get_logger().info(f'pipeline rebuilt for {", ".join(changes)}')
+
+    def _undo(self, changes: dict[str, Any], reason: str) -> None:
+        """Set the parameters of a failed rebuild back to the values the pipeline has."""
+        self._warn('parameters_refused', ' '.join(changes),
+                   f'rebuild for {", ".join(changes)} failed, the values are set back: '
+                   f'{reason}')
+        with self._rebuild_lock:
+            config = self.config
+            for name in changes:
+                self._pending_changes.pop(name, None)
+        if config is not None:
+            self.set_parameters([Parameter(name, value=config.values[name])
+                                 for name in changes])
 
     @property
     def lifecycle_state(self) -> str:
@@ -261,7 +375,7 @@ class BBPoseNode(LifecycleNode):
             return 'unconfigured'
         return 'active' if self._serving else 'inactive'
 
-    def _input_events(self, topic):
+    def _input_events(self, topic: str) -> SubscriptionEventCallbacks:
         """Event callbacks of an input subscription: incompatible QoS is reported."""
         def on_incompatible_qos(event: QoSRequestedIncompatibleQoSInfo) -> None:
             policy = QoSPolicyKind(event.last_policy_kind).name.lower()
@@ -274,16 +388,18 @@ class BBPoseNode(LifecycleNode):
                            f"match it, or the publisher's QoS")
         return SubscriptionEventCallbacks(incompatible_qos=on_incompatible_qos)
 
-    def _on_image(self, message):
+    def _on_image(self, message: Image) -> None:
         self.stats.count('received')
         received_s = time.perf_counter()
         header = message.header
-        odd = self._stamps.check(conversions.stamp_to_ns(header.stamp),
+        odd = self._stamps.check(stamp_to_ns(header.stamp),
                                  self.get_clock().now().nanoseconds)
         if odd is not None and odd[0] == REPEATED:
             self._warn(REPEATED, REPEATED,
                        f'image dropped (stamp {_stamp_text(header)}): {odd[1]}')
             return
+        if odd is not None and odd[0] == BACKWARDS:
+            self._stream += 1            # a new stream: what was tracked is of the old one
         if odd is not None:
             self._warn(odd[0], odd[0], f'image (stamp {_stamp_text(header)}) answered '
                        f'anyway: {odd[1]}')
@@ -293,25 +409,26 @@ class BBPoseNode(LifecycleNode):
                        f'is empty, so its poses name no frame')
         try:
             frame = Frame(header, conversions.image_to_rgb(
-                message, self.get_parameter('max_image_pixels').value), received_s)
+                message, self.get_parameter('max_image_pixels').value), received_s,
+                self._stream)
         except InputError as err:
             self._drop('bad_image', str(err),
                        f'image dropped (stamp {_stamp_text(header)}): {err}')
             return
         pair, displaced = self._pairer.add_image(
-            conversions.stamp_to_ns(message.header.stamp), frame, self._sync_slop())
+            stamp_to_ns(message.header.stamp), frame, self._sync_slop())
         if displaced is not None:
             self._drop_unpaired(displaced, 'a newer image arrived first')
         if pair is not None:
             self._hand_off(*pair)
 
-    def _on_camera_info(self, message):
-        pair = self._pairer.add_info(conversions.stamp_to_ns(message.header.stamp), message,
+    def _on_camera_info(self, message: CameraInfo) -> None:
+        pair = self._pairer.add_info(stamp_to_ns(message.header.stamp), message,
                                      self._sync_slop())
         if pair is not None:
             self._hand_off(*pair)
 
-    def _hand_off(self, frame, info):
+    def _hand_off(self, frame: Frame, info: CameraInfo) -> None:
         height, width = frame.image_rgb.shape[:2]
         try:
             camera = camera_model(info, width, height, self.get_parameter('rectified').value)
@@ -322,7 +439,7 @@ class BBPoseNode(LifecycleNode):
         if self._slot.put((frame, camera)) is not None:
             self.stats.count('superseded')
 
-    def _on_timer(self):
+    def _on_timer(self) -> None:
         if self._serving:
             waiting = self._pairer.waiting
             if waiting is not None and \
@@ -334,16 +451,21 @@ class BBPoseNode(LifecycleNode):
         self._diagnostics_pub.publish(
             diagnostics_message(self.get_clock().now().to_msg(), [status]))
 
-    def _work(self):
+    def _work(self) -> None:
         """Worker thread: estimate and publish the newest pair until the slot closes."""
+        stream = self._stream
         while (item := self._slot.take()) is not None:
             frame, model = item
-            estimator = self.estimator     # a run-time parameter set may swap it
+            pipeline = self.pipeline     # a run-time rebuild may swap it
+            if frame.stream != stream and isinstance(pipeline.pipeline, PoseTracker):
+                pipeline.pipeline.reset()
+                self.get_logger().info('tracks reset: the image stamps went back')
+            stream = frame.stream
             try:
                 image_rgb = self._rectifier(frame.image_rgb, model)
-                result = estimator.pipeline.estimate(image_rgb, model.intrinsics)
+                result = pipeline.pipeline.estimate(image_rgb, model.intrinsics)
                 self._publish(frame.header, image_rgb, model.intrinsics, result.poses,
-                              estimator)
+                              pipeline)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 if not self.context.ok():
                     return        # shutting down: the frame in hand is abandoned
@@ -355,19 +477,20 @@ class BBPoseNode(LifecycleNode):
                 dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
             self.stats.count('answered')
 
-    def _publish(self, header, image_rgb, camera, poses, estimator):
+    def _publish(self, header: Header, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                 poses: Sequence[PoseEstimate], pipeline: NodePipeline) -> None:
         """Poses first, then the markers that mark the frame answered, then the debug image."""
-        stamped, markers = conversions.frame_messages(header, poses, estimator.markers)
+        stamped, markers = conversions.frame_messages(header, poses, pipeline.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(
-                header, draw_estimates(image_rgb, camera, estimator.pipeline.models, poses)))
+                header, draw_estimates(image_rgb, camera, pipeline.pipeline.models, poses)))
 
-    def _drop_unpaired(self, frame, reason):
-        offset_s = self._pairer.nearest_offset_s(conversions.stamp_to_ns(frame.header.stamp))
+    def _drop_unpaired(self, frame: Frame, reason: str) -> None:
+        offset_s = self._pairer.nearest_offset_s(stamp_to_ns(frame.header.stamp))
         if offset_s is None:
             key, problem = 'none', f'no {self._topic("camera_info")} received yet'
         else:
@@ -377,31 +500,31 @@ class BBPoseNode(LifecycleNode):
         self._warn('unpaired', key,
                    f'image dropped (stamp {_stamp_text(frame.header)}): {problem} ({reason})')
 
-    def _warn(self, counter, key, text):
+    def _warn(self, counter: str, key: str, text: str) -> None:
         """Count ``counter``; log ``text`` as a warning, throttled per (counter, key)."""
         self.stats.count(counter)
         if self._throttle.allow(f'{counter}:{key}'):
             self.get_logger().warning(text)
 
-    def _drop(self, counter, key, text):
+    def _drop(self, counter: str, key: str, text: str) -> None:
         """Count a frame dropped for bad input; log ``text`` as an error, throttled."""
         self.stats.count(counter)
         if self._throttle.allow(f'{counter}:{key}'):
             self.get_logger().error(text)
 
-    def _sync_slop(self):
+    def _sync_slop(self) -> float:
         return self.get_parameter('sync_slop').value
 
-    def _topic(self, name):
+    def _topic(self, name: str) -> str:
         return self.resolve_topic_name(name)
 
 
-def _reason(err):
+def _reason(err: BaseException) -> str:
     """Return an exception as a reason: an InputError's message names the problem already."""
     return str(err) if isinstance(err, InputError) else f'{type(err).__name__}: {err}'
 
 
-def _stamp_text(header):
+def _stamp_text(header: Header) -> str:
     return f'{header.stamp.sec}.{header.stamp.nanosec:09d}'
 
 

@@ -19,14 +19,16 @@ Each parameter says when the node reads it (``ParameterSpec.applies``):
 
 * ``start``: once, when the process starts (read-only);
 * ``configure``: by the configure transition; settable while the node is unconfigured;
-* ``pipeline``: shapes the pipeline; a run-time set rebuilds it (the set fails, with the
-  reason, if the rebuild does) and the node keeps serving meanwhile. Each but ``objects``
-  is passed to ``load_pipeline`` as the keyword of its name;
+* ``pipeline``: shapes the pipeline; a run-time set rebuilds it off the executor thread
+  while the node keeps serving with the pipeline it has, and swaps it in when built;
 * ``frame``: read for every frame; settable at any time.
 
-A value is checked by ``check_value`` (type, range, then the parameter's own check), both
-when the configure transition reads it and when it is set at run time, so a new parameter
-is one table entry. ``config/bbpose.yaml`` documents each one.
+A parameter that sets a field of ``PipelineOptions`` (``ParameterSpec.option``) takes its
+default, range and check from there, so the node, ``bbpose eval`` and ``bbpose bench``
+share them; the tracking parameters take theirs from ``TrackingConfig``. A value is checked
+by ``check_value`` (type, then the option's or the parameter's own check), both when the
+configure transition reads it and when it is set at run time, so a new parameter is one
+table entry. ``config/bbpose.yaml`` documents each one.
 """
 
 from __future__ import annotations
@@ -44,17 +46,15 @@ from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 import yaml
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
+from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.backends import BACKENDS
-from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.pipeline.refinement import DEFAULT_REFINE_HYPOTHESES
+from bbpose_ros.core.pipeline.options import check_option, option_range, PipelineOptions
 from bbpose_ros.core.pipeline.tracking import TrackingConfig
 
 if TYPE_CHECKING:
     from rclpy.node import Node
 
 NODE_NAME = 'bbpose_node'
-LMO_OBJECTS = ['ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher']
 RELIABILITY = {'reliable': QoSReliabilityPolicy.RELIABLE,
                'best_effort': QoSReliabilityPolicy.BEST_EFFORT}
 APPLIES = ('start', 'configure', 'pipeline', 'frame')
@@ -69,30 +69,42 @@ class ParameterSpec:
         default: the declared default; its type is the parameter's (rclpy refuses others).
         description: one line for the descriptor (config/bbpose.yaml says more).
         applies: when the node reads it, one of APPLIES.
-        int_range, float_range: (from, to), inclusive, for the descriptor and the check.
+        value_range: (from, to), inclusive, for the descriptor and the check.
         check: raises InputError saying what is wrong with a value of the right type.
+        option: the PipelineOptions field it sets (see ``option_spec``), or None.
 
     """
 
     default: Any
     description: str
     applies: str
-    int_range: tuple[int, int] | None = None
-    float_range: tuple[float, float] | None = None
+    value_range: tuple[float, float] | None = None
     check: Callable[[Any], None] | None = field(default=None, compare=False)
+    option: str | None = None
 
     @property
     def descriptor(self) -> ParameterDescriptor:
         """Return the ParameterDescriptor (read-only for ``start`` parameters)."""
         descriptor = ParameterDescriptor(description=self.description,
                                          read_only=self.applies == 'start')
-        if self.int_range is not None:
-            descriptor.integer_range = [IntegerRange(from_value=self.int_range[0],
-                                                     to_value=self.int_range[1], step=1)]
-        if self.float_range is not None:
+        if self.value_range is not None and isinstance(self.default, int) \
+                and not isinstance(self.default, bool):
+            descriptor.integer_range = [IntegerRange(from_value=self.value_range[0],
+                                                     to_value=self.value_range[1], step=1)]
+        elif self.value_range is not None:
             descriptor.floating_point_range = [FloatingPointRange(
-                from_value=self.float_range[0], to_value=self.float_range[1])]
+                from_value=float(self.value_range[0]), to_value=float(self.value_range[1]))]
         return descriptor
+
+
+def option_spec(option: str, description: str, applies: str = 'pipeline') -> ParameterSpec:
+    """Make the ParameterSpec of PipelineOptions field ``option``: its default, range, check."""
+    return ParameterSpec(getattr(_DEFAULT_OPTIONS, option), description, applies,
+                         value_range=option_range(option), option=option)
+
+
+_DEFAULT_OPTIONS = PipelineOptions()
+_DEFAULT_TRACKING = TrackingConfig()
 
 
 def _one_of(choices):
@@ -108,11 +120,6 @@ def _check_objects(names):
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise InputError(f'{", ".join(repeated)} listed more than once')
-
-
-def _check_device(device):
-    if device != 'cpu' and not device.startswith('cuda'):
-        raise InputError(f'"{device}" is not cpu, cuda or cuda:N')
 
 
 def _check_weights_file(text):
@@ -136,8 +143,8 @@ PARAMETERS = {
         True, 'Configure and activate at start; false: wait in the unconfigured state for '
         'the lifecycle services.', 'start'),
     'objects': ParameterSpec(
-        LMO_OBJECTS, 'Names of the objects to report (BOP LineMod names, e.g. ape); one pose '
-        'topic each.', 'pipeline', check=_check_objects),
+        list(LMO_OBJECTS), 'Names of the objects to report (BOP LineMod names, e.g. ape); one '
+        'pose topic each.', 'pipeline', check=_check_objects),
     'dataset_dir': ParameterSpec(
         '', 'BOP dataset folder with models/ (meshes in mm, models_info.json) and optionally '
         'models_eval/; empty: $BBPOSE_DATASET, else ../shared/datasets/lmo.', 'configure',
@@ -148,56 +155,54 @@ PARAMETERS = {
     'qnet_weights': ParameterSpec(
         '', 'Q-Net rotation weights file (.pt); empty: the weights shipped in '
         'bbpose_ros/weights.', 'configure', check=_check_weights_file),
-    'score_threshold': ParameterSpec(
-        0.3, 'Detections scoring below this (0..1) are ignored.', 'pipeline',
-        float_range=(0.0, 1.0)),
-    'max_instances': ParameterSpec(
-        1, 'Most instances reported per object and frame.', 'pipeline', int_range=(1, 100)),
-    'box_consistency_weight': ParameterSpec(
-        DEFAULT_BOX_CONSISTENCY_WEIGHT, 'With a multi-hypothesis Q-Net, how much the Bounding '
-        'Box Equation misfit (largest side residual / longest box side) counts against the '
-        'log-probability in choosing a rotation; 0: the best-scored one.', 'pipeline',
-        float_range=(0.0, 1000.0)),
-    'refine': ParameterSpec(
-        True, 'Refine each pose by aligning the mesh silhouette with the image (region-based, '
-        'no learning); its score becomes the pose confidence.', 'pipeline'),
-    'refine_hypotheses': ParameterSpec(
-        DEFAULT_REFINE_HYPOTHESES, "How many of each detection's best-ranked rotation "
-        'hypotheses are refined; the best-scored is kept (cost grows with it).', 'pipeline',
-        int_range=(1, 8)),
-    'refine_min_score': ParameterSpec(
-        0.0, 'Refined poses scoring below this (0..1: share of contour lines that agree with '
-        'the image) are dropped; 0 keeps all.', 'pipeline', float_range=(0.0, 1.0)),
+    'score_threshold': option_spec(
+        'score_threshold', 'Detections scoring below this (0..1) are ignored.'),
+    'max_instances': option_spec(
+        'max_instances', 'Most instances reported per object and frame.'),
+    'box_consistency_weight': option_spec(
+        'box_consistency_weight', 'With a multi-hypothesis Q-Net, how much the Bounding Box '
+        'Equation misfit (largest side residual / longest box side) counts against the '
+        'log-probability in choosing a rotation; 0: the best-scored one.'),
+    'refine': option_spec(
+        'refine', 'Refine each pose by aligning the mesh silhouette with the image '
+        '(region-based, no learning); its score becomes the pose confidence.'),
+    'refine_hypotheses': option_spec(
+        'refine_hypotheses', "How many of each detection's best-ranked rotation hypotheses "
+        'are refined; the best-scored is kept (cost grows with it).'),
+    'refine_min_score': option_spec(
+        'refine_min_score', 'Refined poses scoring below this (0..1: share of contour lines '
+        'that agree with the image) are dropped; 0 keeps all.'),
     'tracking': ParameterSpec(
         False, 'Start each refined object from its pose in the previous frame and run the '
         'detector and Q-Net only when needed (needs refine).', 'pipeline'),
     'tracking_redetect_every': ParameterSpec(
-        10, 'With tracking, run the detector and Q-Net at least every this many frames, so '
-        'new objects are found.', 'pipeline', int_range=(1, 1000)),
+        _DEFAULT_TRACKING.redetect_every, 'With tracking, run the detector and Q-Net at least '
+        'every this many frames, so new objects are found.', 'pipeline',
+        value_range=(1, 1000)),
     'tracking_min_score': ParameterSpec(
-        0.5, 'With tracking, a track whose refinement scores below this (0..1) is lost.',
-        'pipeline', float_range=(0.0, 1.0)),
-    'inference_backend': ParameterSpec(
-        'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
-        'configure', check=_one_of(BACKENDS)),
-    'device': ParameterSpec(
-        'cpu', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
-        'backend).', 'configure', check=_check_device),
-    'inference_threads': ParameterSpec(
-        0, 'CPU (intra-op) threads of the inference backend; 0: its default (one per core); '
-        '1: a single thread, leaving the other cores to DDS and the executor.', 'configure',
-        int_range=(0, 256)),
+        _DEFAULT_TRACKING.min_track_score, 'With tracking, a track whose refinement scores '
+        'below this (0..1) is lost.', 'pipeline', value_range=(0.0, 1.0)),
+    'inference_backend': option_spec(
+        'backend', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
+        'configure'),
+    'device': option_spec(
+        'device', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
+        'backend).', 'configure'),
+    'inference_threads': option_spec(
+        'threads', 'CPU (intra-op) threads of the inference backend; 0: its default (one per '
+        'core); 1: a single thread, leaving the other cores to DDS and the executor.',
+        'configure'),
     'qos_reliability': ParameterSpec(
         'reliable', 'Reliability of the image and camera_info subscriptions: reliable or '
         'best_effort.', 'configure', check=_one_of(RELIABILITY)),
     'qos_depth': ParameterSpec(
         1, 'History depth (keep-last) of the image and camera_info subscriptions; the node '
         'processes only the newest frame whatever the depth.', 'configure',
-        int_range=(1, 100)),
+        value_range=(1, 100)),
     'sync_slop': ParameterSpec(
         0.01, 'Seconds by which image and camera_info header stamps may differ to pair; '
         'negative: pair every image with the latest camera_info.', 'frame',
-        float_range=(-1.0, 10.0)),
+        value_range=(-1.0, 10.0)),
     'rectified': ParameterSpec(
         False, 'True when the images are rectified: use CameraInfo P[:3, :3]; false: K, and '
         'a distorted image (plumb_bob, rational_polynomial, equidistant D) is rectified.',
@@ -206,12 +211,12 @@ PARAMETERS = {
         True, 'Draw and publish ~/debug_image (only while it has subscribers).', 'frame'),
     'max_image_pixels': ParameterSpec(
         33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
-        int_range=(1, 2 ** 31 - 1)),
+        value_range=(1, 2 ** 31 - 1)),
 }
 
 
-# The ``pipeline`` parameters that wrap the pipeline in a PoseTracker instead of going to
-# load_pipeline: parameter name -> TrackingConfig field (None: the switch itself).
+# The ``pipeline`` parameters that wrap the pipeline in a PoseTracker: parameter name ->
+# TrackingConfig field (None: the switch itself).
 TRACKING_OPTIONS = {'tracking': None, 'tracking_redetect_every': 'redetect_every',
                     'tracking_min_score': 'min_track_score'}
 
@@ -226,6 +231,7 @@ class NodeConfig:
         dataset_dir: the dataset folder ``dataset_dir`` resolves to.
         detector_weights, qnet_weights: the weight files; None where the shipped one applies.
         qos: the input subscriptions' QoS (``qos_reliability``, ``qos_depth``).
+        options: the PipelineOptions of the parameters that set one of its fields.
 
     """
 
@@ -234,22 +240,12 @@ class NodeConfig:
     detector_weights: Path | None
     qnet_weights: Path | None
     qos: QoSProfile
+    options: PipelineOptions
 
     @property
     def objects(self) -> tuple[str, ...]:
         """Return the names of the objects to report."""
         return tuple(self.values['objects'])
-
-    def pipeline_options(self) -> dict[str, Any]:
-        """
-        Return {name: value} of the ``pipeline`` parameters but ``objects`` and tracking's.
-
-        Each is the ``load_pipeline`` keyword of the same name, so a new switch of the
-        pipeline is one entry of PARAMETERS.
-        """
-        return {name: self.values[name] for name, spec in PARAMETERS.items()
-                if spec.applies == 'pipeline' and name != 'objects'
-                and name not in TRACKING_OPTIONS}
 
     def tracking_config(self) -> TrackingConfig | None:
         """Return the TrackingConfig of the ``tracking`` parameters, None when it is off."""
@@ -261,7 +257,29 @@ class NodeConfig:
 
     def updated(self, changes: dict[str, Any]) -> NodeConfig:
         """Return this config with ``changes`` ({name: value}, ``pipeline`` ones) applied."""
-        return replace(self, values={**self.values, **changes})
+        values = {**self.values, **changes}
+        return replace(self, values=values, options=checked_options(values))
+
+
+def checked_options(values: dict[str, Any]) -> PipelineOptions:
+    """
+    Return the PipelineOptions of parameter ``values`` ({name: value}, every parameter).
+
+    The values one by one are ``check_value``'s; this checks their combinations and raises
+    InputError naming the parameters of one that does not go together.
+    """
+    if values['tracking'] and not values['refine']:
+        raise InputError('parameters tracking / refine: tracking follows refined poses; set '
+                         'refine true or tracking false')
+    fields = {spec.option: values[name] for name, spec in PARAMETERS.items()
+              if spec.option is not None}
+    try:
+        return PipelineOptions(**fields)
+    except InputError as err:      # 'field / field: reason', named here by parameter
+        head, _, reason = str(err).partition(': ')
+        parameter = {spec.option: name for name, spec in PARAMETERS.items() if spec.option}
+        names = ' / '.join(parameter.get(option, option) for option in head.split(' / '))
+        raise InputError(f'parameters {names}: {reason}') from err
 
 
 def declare_parameters(node: Node) -> None:
@@ -283,7 +301,13 @@ def check_value(name: str, value: Any) -> None:
     if value != [] and Parameter.Type.from_parameter_value(value) != expected:
         raise InputError(f'parameter {name}: {value!r} is not of type '
                          f'{expected.name.lower()}')
-    limits = spec.int_range or spec.float_range
+    if spec.option is not None:
+        try:
+            check_option(spec.option, value)
+        except InputError as err:
+            raise InputError(f'parameter {name}: {str(err).partition(": ")[2]}') from err
+        return
+    limits = spec.value_range
     if limits is not None and not limits[0] <= value <= limits[1]:
         raise InputError(f'parameter {name}: {value} is out of range [{limits[0]}, '
                          f'{limits[1]}]')
@@ -302,20 +326,15 @@ def read_config(values: dict[str, Any]) -> NodeConfig:
     """
     for name in PARAMETERS:
         check_value(name, values[name])
-    if values['tracking'] and not values['refine']:
-        raise InputError('parameters tracking / refine: tracking follows refined poses; set '
-                         'refine true or tracking false')
-    if values['inference_backend'] != 'torch' and values['device'] != 'cpu':
-        raise InputError(f'parameters inference_backend / device: '
-                         f'{values["inference_backend"]} runs on the CPU only; use '
-                         f'inference_backend torch for device {values["device"]}')
+    options = checked_options(values)
     return NodeConfig(
         values=dict(values), dataset_dir=resolve_dataset_dir(values['dataset_dir']),
         detector_weights=Path(values['detector_weights']) if values['detector_weights']
         else None,
         qnet_weights=Path(values['qnet_weights']) if values['qnet_weights'] else None,
         qos=QoSProfile(depth=values['qos_depth'],
-                       reliability=RELIABILITY[values['qos_reliability']]))
+                       reliability=RELIABILITY[values['qos_reliability']]),
+        options=options)
 
 
 def parameter_values(node: Node) -> dict[str, Any]:

@@ -41,7 +41,7 @@ from visualization_msgs.msg import MarkerArray
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.writer import STORAGE
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
 from bbpose_ros.ros.params import NODE_NAME, package_config_file
 

@@ -39,6 +39,8 @@ LINEMOD_OBJECTS = {
     8: 'driller', 9: 'duck', 10: 'eggbox', 11: 'glue', 12: 'holepuncher', 13: 'iron',
     14: 'lamp', 15: 'phone',
 }
+# The eight objects annotated in LineMod-Occluded (BOP ids 1, 5, 6, 8, 9, 10, 11, 12).
+LMO_OBJECTS = tuple(LINEMOD_OBJECTS[obj_id] for obj_id in (1, 5, 6, 8, 9, 10, 11, 12))
 
 
 @dataclass
@@ -172,6 +174,12 @@ def resolve_object_names(requested: Collection[str] | None,
     return [name for name in available if name in set(requested)]
 
 
+def bop_object_ids(dataset_dir: Path | str) -> dict[str, int]:
+    """Return {name: BOP object id} of a dataset folder's ``models/models_info.json``."""
+    info = load_models_info(Path(dataset_dir) / 'models' / 'models_info.json')
+    return {LINEMOD_OBJECTS.get(i, f'obj_{i:06d}'): i for i in sorted(info)}
+
+
 def load_bop_models(dataset_dir: Path | str,
                     names: Collection[str] | None = None) -> dict[str, ObjectModel]:
     """
@@ -183,7 +191,7 @@ def load_bop_models(dataset_dir: Path | str,
     dataset_dir = Path(dataset_dir)
     models_dir = dataset_dir / 'models'
     info = load_models_info(models_dir / 'models_info.json')
-    ids_by_name = {LINEMOD_OBJECTS.get(i, f'obj_{i:06d}'): i for i in sorted(info)}
+    ids_by_name = bop_object_ids(dataset_dir)
     eval_dir = dataset_dir / 'models_eval'
     return {
         name: load_object_model(models_dir, ids_by_name[name], info[ids_by_name[name]],

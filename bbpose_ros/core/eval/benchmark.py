@@ -57,7 +57,8 @@ from bbpose_ros.core.latency import latency_stats, stage_stats
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
-    from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate, PosePipeline
+    from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+    from bbpose_ros.core.pipeline.poses import PoseEstimate
 
 STAGES = ('image_conversion', 'detector', 'qnet', 'hypothesis_selection', 'qnet_and_selection',
           'bbox_equation', 'bbox_equation_per_object', 'refinement', 'refinement_per_object',

@@ -39,7 +39,8 @@ from bbpose_ros.core.eval.tables import format_object_table
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
-    from bbpose_ros.core.pipeline.pose_pipeline import Detection, PosePipeline
+    from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+    from bbpose_ros.core.pipeline.poses import Detection
 
 VISIB_STRICT = 0.3
 

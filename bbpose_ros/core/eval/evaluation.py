@@ -25,7 +25,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 import math
-import time
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
@@ -36,10 +35,11 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import metrics
 from bbpose_ros.core.eval.tables import format_object_table
 from bbpose_ros.core.geometry.boxes import box_iou
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import euler_error_deg, perturb_pose
-from bbpose_ros.core.latency import timing_summary
-from bbpose_ros.core.pipeline.pose_pipeline import (Detection, FrameResult, PoseEstimate,
-                                                    PosePipeline)
+from bbpose_ros.core.latency import StageTimer, timing_summary
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.poses import Detection, FrameResult, PoseEstimate
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame, GroundTruthInstance
@@ -281,16 +281,14 @@ def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: Came
                      detections: Sequence[Detection], truths: Sequence[GroundTruthInstance],
                      perturb: tuple[float, float], rng: np.random.Generator) -> FrameResult:
     """Refine perturbed ground-truth poses with the pipeline's refiner (see score_frames)."""
-    start = time.perf_counter()
+    timer = StageTimer()
     poses = [PoseEstimate(d, *perturb_pose(t.rotation, t.translation, perturb[0], perturb[1],
                                            rng))
              for d, t in zip(detections, truths)]
-    timings = {}
     if pipeline.refiner is not None and poses:
         poses = pipeline.refiner(image_rgb, camera, poses)
-        timings['refinement'] = (time.perf_counter() - start) * 1e3
-    timings['total'] = (time.perf_counter() - start) * 1e3
-    return FrameResult(poses, timings)
+        timer.lap('refinement')
+    return FrameResult(poses, timer.total())
 
 
 def score_frame(models: Mapping[str, ObjectModel], instances: Sequence[GroundTruthInstance],
@@ -301,11 +299,18 @@ def score_frame(models: Mapping[str, ObjectModel], instances: Sequence[GroundTru
                                       _poses_for_instances(models, poses, instances, camera))]
 
 
-def projected_box(model: ObjectModel, camera: CameraIntrinsics, rotation: npt.ArrayLike,
-                  translation: npt.ArrayLike) -> np.ndarray:
-    """Return the box [u_min, v_min, u_max, v_max] of the model projected at a pose."""
-    uv = camera.project(model.hull_points @ np.asarray(rotation).T + translation)
-    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
+def pose_box(model: ObjectModel, camera: CameraIntrinsics, rotation: npt.ArrayLike,
+             translation: npt.ArrayLike) -> np.ndarray:
+    """
+    Return the box (4,) of the model projected at a pose (``projected_box_uv``).
+
+    A pose with part of the model behind the camera has no box: all NaN, which overlaps
+    nothing, so it matches no instance.
+    """
+    try:
+        return projected_box_uv(camera, model.hull_points, rotation, translation)
+    except InputError:
+        return np.full(4, np.nan)
 
 
 def summarize_objects(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, Any]:
@@ -337,7 +342,7 @@ def _poses_for_instances(models, poses, instances, camera):
     poses only) are matched alike.
     """
     def box_of(name, rotation, translation):
-        return projected_box(models[name], camera, rotation, translation)
+        return pose_box(models[name], camera, rotation, translation)
 
     boxed_poses = [Detection(p.object_name, p.detection.score,
                              box_of(p.object_name, p.rotation, p.translation)) for p in poses]

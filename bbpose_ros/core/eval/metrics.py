@@ -24,13 +24,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from bbpose_ros.core.geometry.projection import project_with_k, transform_points
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
-
-
-def transform_points(pts: np.ndarray, rotation: npt.ArrayLike,
-                     translation: npt.ArrayLike) -> np.ndarray:
-    """Apply x' = R x + t to (P, 3) points."""
-    return pts @ np.asarray(rotation).T + np.asarray(translation).reshape(1, 3)
 
 
 def add(rotation_e: npt.ArrayLike, t_e: npt.ArrayLike, rotation_g: npt.ArrayLike,
@@ -53,11 +48,8 @@ def adi(rotation_e: npt.ArrayLike, t_e: npt.ArrayLike, rotation_g: npt.ArrayLike
 def proj(rotation_e: npt.ArrayLike, t_e: npt.ArrayLike, rotation_g: npt.ArrayLike,
          t_g: npt.ArrayLike, k: npt.ArrayLike, pts: np.ndarray) -> float:
     """Mean 2D distance of the projected model points (pixels) under the 3x3 camera K."""
-    def project(points):
-        uvw = points @ np.asarray(k).T
-        return uvw[:, :2] / uvw[:, 2:3]
-    est = project(transform_points(pts, rotation_e, t_e))
-    gt = project(transform_points(pts, rotation_g, t_g))
+    est = project_with_k(transform_points(pts, rotation_e, t_e), k)
+    gt = project_with_k(transform_points(pts, rotation_g, t_g), k)
     return float(np.linalg.norm(est - gt, axis=1).mean())
 
 

@@ -14,7 +14,9 @@
 
 
 """
-Axis-aligned 2D boxes [u_min, v_min, u_max, v_max] in continuous pixels: overlap and jitter.
+Axis-aligned 2D boxes [u_min, v_min, u_max, v_max] in continuous pixels.
+
+Their centres, overlap and jitter, and the box of a mask.
 
 Pixel convention of ``CameraIntrinsics``: the centre of pixel (col, row) is at
 (u, v) = (col, row), so a box spanning whole pixels has edges on half-integers.
@@ -22,6 +24,12 @@ Pixel convention of ``CameraIntrinsics``: the centre of pixel (col, row) is at
 
 import numpy as np
 import numpy.typing as npt
+
+
+def box_centres(boxes_uv: npt.ArrayLike) -> np.ndarray:
+    """(N, 2) centres (u, v) of (N, 4) boxes [u_min, v_min, u_max, v_max]."""
+    boxes = np.asarray(boxes_uv, dtype=float).reshape(-1, 4)
+    return (boxes[:, :2] + boxes[:, 2:]) * 0.5
 
 
 def box_iou(boxes_a: npt.ArrayLike, boxes_b: npt.ArrayLike) -> np.ndarray:
@@ -49,3 +57,16 @@ def jitter_boxes(boxes_uv: npt.ArrayLike, rng: np.random.Generator,
     centre = (jittered[:, :2] + jittered[:, 2:]) / 2
     half = np.maximum((jittered[:, 2:] - jittered[:, :2]) / 2, 1.0)
     return np.concatenate([centre - half, centre + half], axis=1)
+
+
+def mask_box_uv(mask: np.ndarray) -> np.ndarray | None:
+    """
+    Compute the box (4,) [u_min, v_min, u_max, v_max] of the set pixels of an (H, W) mask.
+
+    The outer edges of the extreme pixels, continuous pixels; None for an empty mask.
+    """
+    cols = np.flatnonzero(mask.any(axis=0))
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(cols) == 0:
+        return None
+    return np.array([cols[0] - 0.5, rows[0] - 0.5, cols[-1] + 0.5, rows[-1] + 0.5])

@@ -112,3 +112,8 @@ class CameraIntrinsics:
     def normalized(self, uv: npt.ArrayLike) -> np.ndarray:
         """Map (..., 2) pixels (u, v) to normalised image coordinates ((u-cx)/fx, (v-cy)/fy)."""
         return (np.asarray(uv, dtype=float) - (self.cx, self.cy)) / (self.fx, self.fy)
+
+    def rays(self, uv: npt.ArrayLike) -> np.ndarray:
+        """Return the viewing ray (x/z, y/z, 1), camera frame, of each pixel: (..., 3)."""
+        xy = self.normalized(uv)
+        return np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)

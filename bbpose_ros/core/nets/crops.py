@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Square crops around 2D boxes, the input of Q-Net, and the rays through the box centres.
+Square crops around 2D boxes: the input of Q-Net.
 
 Boxes are [u_min, v_min, u_max, v_max] in the OpenCV continuous pixel convention (pixel
 centres at integers). A crop is square, centred on the box, of side ``context`` times the
@@ -26,8 +26,6 @@ import math
 import cv2
 import numpy as np
 import numpy.typing as npt
-
-from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 FILL_VALUE = 128
 
@@ -80,11 +78,3 @@ def _padded(region, side, top, left):
     h, w = region.shape[:2]
     canvas[top:top + h, left:left + w] = region
     return canvas
-
-
-def box_centre_rays(boxes_uv: npt.ArrayLike, camera: CameraIntrinsics) -> np.ndarray:
-    """(N, 3) rays (x/z, y/z, 1) in the camera frame through the centres of (N, 4) boxes."""
-    boxes = np.asarray(boxes_uv, dtype=float).reshape(-1, 4)
-    rays = np.ones((len(boxes), 3))
-    rays[:, :2] = camera.normalized((boxes[:, :2] + boxes[:, 2:]) * 0.5)
-    return rays

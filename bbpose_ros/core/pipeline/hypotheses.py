@@ -32,7 +32,6 @@ changes a residual by far less than the differences between hypotheses.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,28 +40,13 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
-    from bbpose_ros.core.pipeline.pose_pipeline import Detection
 
 DEFAULT_BOX_CONSISTENCY_WEIGHT = 20.0
 SCORING_POINTS = 128
-
-
-@dataclass(frozen=True)
-class RotationHypotheses:
-    """
-    Several candidate rotations per detection.
-
-    Attributes:
-        rotations: (N, H, 3, 3) egocentric model-to-camera rotations.
-        log_probs: (N, H) log-probabilities the network gives them (log-softmax of scores).
-
-    """
-
-    rotations: np.ndarray
-    log_probs: np.ndarray
 
 
 def farthest_points(points: npt.ArrayLike, count: int) -> np.ndarray:

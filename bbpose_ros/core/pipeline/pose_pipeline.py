@@ -20,18 +20,18 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
 * a detector ``detect(image_rgb) -> list[Detection]``;
 * a rotation estimator ``estimate(image_rgb, camera, detections) -> (N, 3, 3)``
   model-to-camera (egocentric) rotations, one per detection, or several per detection
-  (``hypotheses.RotationHypotheses``), of which ``hypotheses.HypothesisSelector`` keeps
-  the one that best explains the box;
+  (``poses.RotationHypotheses``), which ``hypotheses.HypothesisSelector`` ranks by how
+  well each explains the box;
 * the Bounding Box Equation for the translations (``bbox_equation``);
 * optionally a refiner (``refinement.PoseRefiner``) that aligns each pose, or the few
   best hypotheses of each detection, with the image and keeps the best-scored one.
+
+The values passed between the stages (Detection, PoseEstimate, ...) live in ``poses``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -40,69 +40,14 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector, RotationHypotheses
+from bbpose_ros.core.latency import StageTimer
+from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
+from bbpose_ros.core.pipeline.poses import (Detection, FrameResult, PoseEstimate,
+                                            RotationHypotheses)
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
     from bbpose_ros.core.pipeline.refinement import PoseRefiner
-
-
-@dataclass(frozen=True)
-class Detection:
-    """
-    A 2D detection of one object.
-
-    Attributes:
-        object_name: e.g. 'ape'.
-        score: detector confidence, 0..1 (1 for ground truth).
-        box_uv: (4,) amodal box [u_min, v_min, u_max, v_max], continuous pixel coordinates
-            (pixel centres at integers), the outer edges of the whole object's projection.
-
-    """
-
-    object_name: str
-    score: float
-    box_uv: np.ndarray
-
-
-@dataclass(frozen=True)
-class PoseEstimate:
-    """
-    A 6D pose: x_cam = rotation @ x_model + translation.
-
-    Attributes:
-        detection: the Detection it was estimated from.
-        rotation: (3, 3) model-to-camera rotation (egocentric).
-        translation: (3,) metres, camera optical frame.
-        refinement_score: when refined, the share of contour lines that agree with the
-            image (0..1, ``region_refiner``); None when not refined.
-
-    """
-
-    detection: Detection
-    rotation: np.ndarray
-    translation: np.ndarray
-    refinement_score: float | None = None
-
-    @property
-    def object_name(self) -> str:
-        """Name of the object."""
-        return self.detection.object_name
-
-    @property
-    def confidence(self) -> float:
-        """Return the refinement score when refined, else the detection score (0..1)."""
-        if self.refinement_score is not None:
-            return self.refinement_score
-        return self.detection.score
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """The poses found in one frame and the time each stage took (milliseconds)."""
-
-    poses: list[PoseEstimate]
-    timings_ms: dict[str, float]
 
 
 class PosePipeline:
@@ -121,8 +66,9 @@ class PosePipeline:
             None: one with the default weight, made when hypotheses first come.
         refiner: a ``refinement.PoseRefiner`` (its ``best_of`` refines candidate poses and
             keeps the best-scored one per detection), or None (no refinement).
-        refine_hypotheses: with a refiner and RotationHypotheses, how many of each
-            detection's best-ranked hypotheses are solved and refined (1: the chosen one).
+        candidates: with RotationHypotheses, how many of each detection's best-ranked
+            hypotheses are solved (and refined: the best-scored is kept); without a refiner
+            only the first is reported (``PipelineOptions.candidates_per_detection``).
 
     """
 
@@ -133,7 +79,7 @@ class PosePipeline:
                      np.ndarray | RotationHypotheses] | None = None,
                  selection: str = 'tangent_planes', max_iterations: int = 10,
                  hypothesis_selector: HypothesisSelector | None = None,
-                 refiner: PoseRefiner | None = None, refine_hypotheses: int = 1) -> None:
+                 refiner: PoseRefiner | None = None, candidates: int = 1) -> None:
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -142,10 +88,8 @@ class PosePipeline:
         self.selection = selection
         self.max_iterations = max_iterations
         self.hypothesis_selector = hypothesis_selector
-        if refine_hypotheses < 1:
-            raise InputError(f'refine_hypotheses must be at least 1, got {refine_hypotheses}')
         self.refiner = refiner
-        self.refine_hypotheses = int(refine_hypotheses)
+        self.candidates = int(candidates) if refiner is not None else 1
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Iterable[Detection] | None = None,
@@ -164,43 +108,36 @@ class PosePipeline:
             A FrameResult; poses keep the detections' order.
 
         """
-        timings = {}
-        start = time.perf_counter()
+        timer = StageTimer()
         if detections is None:
             if self.detector is None:
                 raise InputError('the pipeline has no detector and no detections were given')
             detections = self.detector(image_rgb)
-            timings['detector'] = _ms_since(start)
+            timer.lap('detector')
         detections = [d for d in detections if d.object_name in self.models]
         if rotations is None and detections:
             if self.rotation_estimator is None:
                 raise InputError('the pipeline has no rotation estimator and no rotations '
                                  'were given')
-            stage = time.perf_counter()
             rotations = self.rotation_estimator(image_rgb, camera, detections)
-            timings['rotation'] = _ms_since(stage)
+            timer.lap('rotation')
         candidates = 1
         if isinstance(rotations, RotationHypotheses):
-            stage = time.perf_counter()
             if self.hypothesis_selector is None:
                 self.hypothesis_selector = HypothesisSelector(self.models)
-            refined = self.refiner is not None and self.refine_hypotheses > 1
-            rotations = self.hypothesis_selector.ranked(
-                camera, detections, rotations, self.refine_hypotheses if refined else 1)
+            rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
+                                                        self.candidates)
             candidates = rotations.shape[1]
-            timings['hypothesis_selection'] = _ms_since(stage)
-        stage = time.perf_counter()
+            timer.lap('hypothesis_selection')
         poses = [] if not detections else self.translations(
             camera, [d for d in detections for _ in range(candidates)],
             np.reshape(rotations, (-1, 3, 3)))
-        timings['translation'] = _ms_since(stage)
+        timer.lap('translation')
         if self.refiner is not None and poses:
-            stage = time.perf_counter()
             poses = self.refiner.best_of(image_rgb, camera, [
                 poses[k:k + candidates] for k in range(0, len(poses), candidates)])
-            timings['refinement'] = _ms_since(stage)
-        timings['total'] = _ms_since(start)
-        return FrameResult(poses, timings)
+            timer.lap('refinement')
+        return FrameResult(poses, timer.total())
 
     def translations(self, camera: CameraIntrinsics, detections: Sequence[Detection],
                      rotations: npt.ArrayLike) -> list[PoseEstimate]:
@@ -218,7 +155,3 @@ class PosePipeline:
                                       max_iterations=self.max_iterations)
         return [PoseEstimate(d, r, t)
                 for d, r, t in zip(detections, rotations, solution.translations)]
-
-
-def _ms_since(start):
-    return (time.perf_counter() - start) * 1e3

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The pipeline's refinement stage: each pose aligned with the image by ``refine_poses``.
+The pipeline's refinement stage: each pose aligned with the image by ``refine.refiner``.
 
 It runs after the Bounding Box Equation, whose translation and the chosen rotation are the
 start; the silhouette corrects the depth that a box with a side a few pixels off gets
@@ -33,19 +33,15 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.pipeline.pose_pipeline import PoseEstimate
+from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
-from bbpose_ros.core.refine.region_refiner import (refine_poses, Refinement, RefinerConfig,
-                                                   RegionRefiner)
+from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
-# Rotation hypotheses refined per detection by default: each costs the screening
-# iterations; accuracy by their number in docs/refinement.md.
-DEFAULT_REFINE_HYPOTHESES = 3
 # Correspondence iterations every hypothesis of a detection gets before only the best-scored
 # one is refined to the end: the whole scale schedule once (6, 4, 2, 1) and two more at the
 # finest scale, by which a wrong start shows.
@@ -149,14 +145,6 @@ class PoseRefiner:
         return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
                             [r for r, _ in starts], [t for _, t in starts], self.config,
                             iterations=iterations, first_iteration=first_iteration)
-
-    def refine_one(self, image_rgb: np.ndarray, camera: CameraIntrinsics, name: str,
-                   rotation: np.ndarray, translation: np.ndarray,
-                   histograms: ColorHistograms | None = None,
-                   iterations: int | None = None, first_iteration: int = 0) -> Refinement:
-        """Refine one pose of object ``name`` (see ``RegionRefiner.refine``)."""
-        return RegionRefiner(self.viewpoint_models[name], self.config).refine(
-            image_rgb, camera, rotation, translation, histograms, iterations, first_iteration)
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],

@@ -34,14 +34,15 @@ Only objects the refiner has a viewpoint model of are tracked.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.pipeline.pose_pipeline import FrameResult, PoseEstimate, PosePipeline
+from bbpose_ros.core.latency import StageTimer
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.poses import FrameResult, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 
@@ -113,21 +114,20 @@ class PoseTracker:
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics) -> FrameResult:
         """Track, detect when the policy says so, and return the frame's poses."""
-        start = time.perf_counter()
-        timings = {}
+        timer = StageTimer()
         tracked = bool(self.tracks)
         lost = self._follow_tracks(image_rgb, camera)
-        if tracked:
-            timings['tracking'] = _ms_since(start)
+        timer.lap('tracking' if tracked else None)
         self._since_detection += 1
         untracked = []
         if not self.tracks or lost or self._since_detection >= self.config.redetect_every:
             result = self.pipeline.estimate(image_rgb, camera)
-            timings.update(result.timings_ms)
+            timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
+                                    if stage != 'total')
             untracked = self._adopt(result.poses)
             self._since_detection = 0
-        timings['total'] = _ms_since(start)
-        return FrameResult([track.pose for track in self.tracks.values()] + untracked, timings)
+        return FrameResult([track.pose for track in self.tracks.values()] + untracked,
+                           timer.total())
 
     def _follow_tracks(self, image_rgb, camera):
         """Refine every track from its last pose; drop the lost ones; tell if any was."""
@@ -166,7 +166,3 @@ class PoseTracker:
             else:
                 untracked.append(pose)
         return untracked
-
-
-def _ms_since(start):
-    return (time.perf_counter() - start) * 1e3

@@ -21,9 +21,8 @@ convention of ``CameraIntrinsics``: the centre of pixel (col, row) is at (u, v) 
 and a pixel belongs to a silhouette when its centre lies inside a projected triangle.
 """
 
+from bbpose_ros.core.render.clip_space import opengl_projection
 from bbpose_ros.core.render.gl_renderer import Draw, Lighting, MeshRenderer, RenderResult
 from bbpose_ros.core.render.mesh import RenderMesh
-from bbpose_ros.core.render.projection import mask_box_uv, opengl_projection, projected_box_uv
 
-__all__ = ['Draw', 'Lighting', 'MeshRenderer', 'RenderMesh', 'RenderResult', 'mask_box_uv',
-           'opengl_projection', 'projected_box_uv']
+__all__ = ['Draw', 'Lighting', 'MeshRenderer', 'RenderMesh', 'RenderResult', 'opengl_projection']

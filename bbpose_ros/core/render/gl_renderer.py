@@ -34,9 +34,10 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render import shaders
+from bbpose_ros.core.render.clip_space import opengl_projection
 from bbpose_ros.core.render.mesh import RenderMesh
-from bbpose_ros.core.render.projection import opengl_projection, projected_box_uv
 
 # The instance-id target is 8 bits wide and 0 is the background.
 MAX_DRAWS = 255

@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.render.projection import transform_points
+from bbpose_ros.core.geometry.projection import transform_points
 
 # Candidate pixels evaluated per chunk (bounds memory for large triangles).
 _CHUNK_PIXELS = 1 << 21

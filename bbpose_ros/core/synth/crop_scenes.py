@@ -36,8 +36,9 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.nets.crops import FILL_VALUE, square_boxes
-from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
+from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
 from bbpose_ros.core.synth.effects import apply_camera_effects

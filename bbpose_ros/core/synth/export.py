@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.data.models import MM_TO_M
+from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.render import mask_box_uv
 from bbpose_ros.core.synth.scenes import SyntheticSample
 
 

@@ -29,7 +29,8 @@ import numpy as np
 from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
+from bbpose_ros.core.geometry.projection import projected_box_uv
+from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
 from bbpose_ros.core.synth.effects import apply_camera_effects

@@ -55,8 +55,8 @@ from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
-from bbpose_ros.core.render.projection import projected_box_uv
 from bbpose_ros.core.synth.crop_scenes import CropSample
 from bbpose_ros.core.training import cache as scene_cache
 from bbpose_ros.core.training import crop_cache

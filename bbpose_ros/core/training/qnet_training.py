@@ -40,8 +40,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric, matrix_to_quat_wxyz
-from bbpose_ros.core.nets.crops import box_centre_rays
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
@@ -120,7 +120,7 @@ class QNetBatches:
         rotations = cache.rotation[ids].astype(float)
         if config.rotation_target == 'allocentric':
             rotations = egocentric_to_allocentric(rotations,
-                                                  box_centre_rays(boxes, cache.camera))
+                                                  cache.camera.rays(box_centres(boxes)))
         index = self.net_index[ids]
         candidates = rotations[:, None] @ self.symmetries[index]
         quats = matrix_to_quat_wxyz(candidates)
@@ -136,7 +136,7 @@ class QNetBatches:
 def inplane_deg(cache: TrainingCache | CropCache) -> np.ndarray:
     """(m,) roll of each cached instance about the ray through its amodal box centre, deg."""
     rotations = egocentric_to_allocentric(cache.rotation.astype(float),
-                                          box_centre_rays(cache.box_uv, cache.camera))
+                                          cache.camera.rays(box_centres(cache.box_uv)))
     return np.degrees(viewpoint_angles(rotations)[2])
 
 

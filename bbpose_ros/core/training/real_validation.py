@@ -32,8 +32,9 @@ import numpy as np
 from bbpose_ros.core.eval.detection import score_detections
 from bbpose_ros.core.nets.detector import CenterBoxNet
 from bbpose_ros.core.nets.qnet import QNet
-from bbpose_ros.core.pipeline.estimators import BoxDetector, QNetRotationEstimator
-from bbpose_ros.core.pipeline.pose_pipeline import Detection
+from bbpose_ros.core.pipeline.box_detector import BoxDetector
+from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame

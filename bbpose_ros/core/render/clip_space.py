@@ -13,17 +13,15 @@
 # limitations under the License.
 
 """
-Projection conventions shared by the renderers and the ground truth.
+OpenGL's clip-space matrix of a camera, in the pixel convention of the ground truth.
 
 Pixel coordinates are continuous and follow ``CameraIntrinsics``: the centre of pixel
 (col, row) is at (u, v) = (col, row), so pixel (col, row) spans [col - 0.5, col + 0.5] x
-[row - 0.5, row + 0.5]. Boxes are [u_min, v_min, u_max, v_max] in these coordinates.
+[row - 0.5, row + 0.5]. Points at a pose and their pixel boxes: ``geometry.projection``.
 """
 
 import numpy as np
-import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 
@@ -49,38 +47,3 @@ def opengl_projection(camera: CameraIntrinsics, near: float, far: float,
         [0.0, 0.0, (far + near) / (far - near), -2.0 * far * near / (far - near)],
         [0.0, 0.0, 1.0, 0.0],
     ])
-
-
-def transform_points(points: npt.ArrayLike, rotation: npt.ArrayLike,
-                     translation: npt.ArrayLike) -> np.ndarray:
-    """Map (N, 3) model points to the camera frame: x_cam = R x + t (metres)."""
-    return np.asarray(points, dtype=float) @ np.asarray(rotation, dtype=float).T + translation
-
-
-def projected_box_uv(camera: CameraIntrinsics, points: npt.ArrayLike, rotation: npt.ArrayLike,
-                     translation: npt.ArrayLike) -> np.ndarray:
-    """
-    Compute the amodal box (4,) [u_min, v_min, u_max, v_max] of (N, 3) points at a pose.
-
-    The extremes of the projected points, continuous pixels, possibly outside the image.
-    Pass a mesh's convex-hull vertices for speed: the extremes always lie among them. Points
-    at or behind the camera (z <= 0) have no projection and are an InputError.
-    """
-    points_cam = transform_points(points, rotation, translation)
-    if np.any(points_cam[:, 2] <= 0.0):
-        raise InputError('cannot project a box: part of the object is behind the camera')
-    uv = camera.project(points_cam)
-    return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
-
-
-def mask_box_uv(mask: np.ndarray) -> np.ndarray | None:
-    """
-    Compute the box (4,) [u_min, v_min, u_max, v_max] of the set pixels of an (H, W) mask.
-
-    The outer edges of the extreme pixels, continuous pixels; None for an empty mask.
-    """
-    cols = np.flatnonzero(mask.any(axis=0))
-    rows = np.flatnonzero(mask.any(axis=1))
-    if len(cols) == 0:
-        return None
-    return np.array([cols[0] - 0.5, rows[0] - 0.5, cols[-1] + 0.5, rows[-1] + 0.5])

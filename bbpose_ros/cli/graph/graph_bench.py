@@ -27,7 +27,7 @@ system clock), not with when this process's executor got round to its callback, 
 benchmark process does not inflate the latencies it reports.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import time
 
 from geometry_msgs.msg import PoseStamped
@@ -45,7 +45,7 @@ from bbpose_ros.cli.graph.replay import DIAGNOSTICS_TIMEOUT_S, NodeProcess, Reco
 from bbpose_ros.cli.graph.replay import use_large_image_profile
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import sample_process
-from bbpose_ros.ros.conversions import stamp_to_ns
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.params import NODE_NAME
 
 WARMUP_FRAMES = 5          # answered one by one before the clock starts
@@ -143,6 +143,8 @@ class GraphRun:
         node_counts: {counter: frames} the node counted during the run (see diagnostics).
         node_rss_trace: [(seconds since the first publication, node RSS in MB)], about one
             a second.
+        stop_s: seconds from SIGINT to the node's exit, after the run.
+        exit_code: the node's exit code.
 
     """
 
@@ -151,6 +153,8 @@ class GraphRun:
     node_end: object
     node_counts: dict
     node_rss_trace: list
+    stop_s: float | None = None
+    exit_code: int | None = None
 
 
 def run_graph(pairs, objects, params_file, overrides, rate_hz, duration_s):
@@ -177,11 +181,14 @@ def run_graph(pairs, objects, params_file, overrides, rate_hz, duration_s):
         recorder = Recorder(node, ())      # connection, warm-up answers and diagnostics
         clock = ArrivalClock(node, objects)
         baseline = _warm_up(camera, recorder, process)
-        return _timed_run(camera, recorder, clock, process, baseline, rate_hz, duration_s)
+        run = _timed_run(camera, recorder, clock, process, baseline, rate_hz, duration_s)
     finally:
-        process.stop()
+        stopping = time.perf_counter()
+        code = process.stop()
+        stop_s = time.perf_counter() - stopping
         node.destroy_node()
         rclpy.try_shutdown()
+    return replace(run, stop_s=stop_s, exit_code=code)
 
 
 def _warm_up(camera, recorder, process):

@@ -15,8 +15,9 @@
 """
 What the node's worker runs: the pipeline of a NodeConfig and the marker builder of its objects.
 
-Built by the configure transition and again by a run-time set of a ``pipeline`` parameter;
-the worker takes the current Estimator once per frame, so a rebuild swaps both at once.
+Built by the configure transition and again, off the executor thread, by a run-time set of
+a ``pipeline`` parameter; the worker takes the current NodePipeline once per frame, so a
+rebuild swaps both at once.
 """
 
 from collections.abc import Callable
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 
 from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.estimators import load_pipeline
+from bbpose_ros.core.pipeline.loader import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros.conversions import MarkerArrayBuilder
@@ -32,7 +33,7 @@ from bbpose_ros.ros.params import NodeConfig
 
 
 @dataclass(frozen=True)
-class Estimator:
+class NodePipeline:
     """
     A pipeline and the MarkerArrayBuilder of its objects.
 
@@ -44,10 +45,10 @@ class Estimator:
     markers: MarkerArrayBuilder
 
 
-def build_estimator(config: NodeConfig,
-                    log: Callable[[str], None] | None = None) -> Estimator:
+def build_node_pipeline(config: NodeConfig,
+                        log: Callable[[str], None] | None = None) -> NodePipeline:
     """
-    Build the Estimator of a NodeConfig: meshes, the learned stages, refinement, tracking.
+    Build the NodePipeline of a NodeConfig: meshes, the learned stages, refinement, tracking.
 
     ``log`` gets a line for each viewpoint model the refiner builds (once per mesh, then
     cached). With ``tracking`` the pipeline is a PoseTracker around the PosePipeline.
@@ -60,17 +61,13 @@ def build_estimator(config: NodeConfig,
     except InputError as err:
         raise InputError(f'parameter objects / dataset_dir: loading the objects from '
                          f'{config.dataset_dir}: {err}') from err
-    values = config.values
     try:
-        pipeline = load_pipeline(models, detector_weights=config.detector_weights,
-                                 qnet_weights=config.qnet_weights,
-                                 backend=values['inference_backend'], device=values['device'],
-                                 threads=values['inference_threads'] or None,
-                                 refiner_log=log, **config.pipeline_options())
+        pipeline = load_pipeline(models, config.options, config.detector_weights,
+                                 config.qnet_weights, refiner_log=log)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
                          f'files): {err}') from err
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)
-    return Estimator(pipeline, MarkerArrayBuilder(models))
+    return NodePipeline(pipeline, MarkerArrayBuilder(models))

@@ -13,18 +13,26 @@
 # limitations under the License.
 
 """
-What is odd about an image's header stamp, compared with the previous image's and the clock.
+Header stamps: their nanoseconds, and what is odd about an image's stamp in a stream.
 
-Plain Python (no rclpy): stamps are integer nanoseconds. A stamp equal to the previous one
+Plain Python (no rclpy): ``stamp_to_ns`` reads any builtin_interfaces/Time (rclpy's or
+rosbags'), and ``StampChecker`` works on integer nanoseconds. A stamp equal to the previous one
 repeats a frame already handled (the node drops it, so each stamp is answered once); an
 older one means the source went back (a reordering publisher, a restarted camera or bag);
 one ahead of the clock by more than a tolerance means the source's clock is not this
 machine's. The node answers the last two and says so.
 """
 
+from typing import Any
+
 REPEATED = 'stamp_repeated'
 BACKWARDS = 'stamp_backwards'
 FUTURE = 'stamp_future'
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Nanoseconds of a builtin_interfaces/Time (anything with ``sec`` and ``nanosec``)."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class StampChecker:

@@ -1,0 +1,90 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``load_pipeline``: the PosePipeline of the learned stages, from two weight files and options.
+
+The node, ``bbpose eval`` and ``bbpose bench`` build their pipelines here, so what runs is
+the same everywhere: the detector (``box_detector``), Q-Net (``rotation_estimator``), the
+hypothesis ranking, the Bounding Box Equation and, with ``options.refine``, the refiner
+(``refinement``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import torch
+
+from bbpose_ros.core.pipeline.box_detector import BoxDetector
+from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
+from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.refinement import load_pose_refiner
+from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
+from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
+                                              load_network)
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+
+# Largest Q-Net batch run at load time (see QNetRotationEstimator.warm_up).
+MAX_WARM_UP_BATCH = 16
+
+
+def load_pipeline(models: Mapping[str, ObjectModel],
+                  options: PipelineOptions | None = None,
+                  detector_weights: Path | str | None = None,
+                  qnet_weights: Path | str | None = None,
+                  refiner_log: Callable[[str], None] | None = None) -> PosePipeline:
+    """
+    Build a PosePipeline with the learned detector and Q-Net, warmed up.
+
+    Args:
+        models: {name: ObjectModel}; every name must be covered by both weight files.
+        options: PipelineOptions (default: the shipped settings).
+        detector_weights: detector file (default: the shipped ``weights/detector.pt``).
+        qnet_weights: Q-Net file (default: the shipped ``weights/qnet.pt``).
+        refiner_log: gets a line for each viewpoint model the refiner builds (once per
+            mesh, then cached).
+
+    Raises:
+        InputError: a missing, corrupt or mismatched weight file.
+
+    """
+    options = options or PipelineOptions()
+    threads = options.threads or None
+    if threads is not None:
+        torch.set_num_threads(threads)
+    names = list(models)
+    selector = HypothesisSelector(models, options.box_consistency_weight)
+    detector = BoxDetector(
+        load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
+        options.score_threshold, options.max_instances, options.backend, options.device,
+        threads)
+    qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
+    # Every hypothesis is needed when they are ranked by the box or several are refined.
+    ranked = selector.weight > 0 or options.candidates_per_detection > 1
+    rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
+                                     all_hypotheses=qnet.config.hypotheses > 1 and ranked)
+    detector.warm_up()
+    rotation.warm_up(min(len(names) * options.max_instances, MAX_WARM_UP_BATCH))
+    refiner = None
+    if options.refine:
+        refiner = load_pose_refiner(models, min_score=options.refine_min_score,
+                                    progress=False, log=refiner_log)
+    return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
+                        refiner=refiner, candidates=options.candidates_per_detection)

@@ -1,0 +1,116 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``PipelineOptions``: every setting of the run-time pipeline, its default and its check.
+
+The one place that states them: ``loader.load_pipeline`` builds the pipeline from a
+PipelineOptions, the node's parameter table takes its defaults and ranges from here, and
+``bbpose eval`` / ``bbpose bench`` fill one from their options. A value is checked once,
+by ``check_option`` (which construction runs for every field), so the node refuses a
+run-time parameter set with the same message that a bad command-line option gets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.pipeline.backends import BACKENDS
+from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+
+
+def _option(default: Any, low: float | None = None, high: float | None = None,
+            choices: tuple[str, ...] | None = None) -> Any:
+    """Make a dataclass field with its inclusive range or its choices as metadata."""
+    return field(default=default, metadata={'range': None if low is None else (low, high),
+                                            'choices': choices})
+
+
+@dataclass(frozen=True)
+class PipelineOptions:
+    """
+    Settings of the pipeline built by ``load_pipeline``; the defaults are the shipped ones.
+
+    Attributes:
+        score_threshold: lowest detector score reported, 0..1.
+        max_instances: most detections per object and frame.
+        box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
+            Equation's misfit counts in choosing a rotation (``hypotheses``); 0: the
+            network's best-scored one.
+        refine: add the region-based refinement stage (``refinement.PoseRefiner``).
+        refine_hypotheses: with refinement, how many of each detection's best-ranked
+            rotation hypotheses are solved and refined (the best-scored is kept); each costs
+            the screening iterations (accuracy by their number: docs/refinement.md).
+        refine_min_score: with refinement, poses scored below this (0..1) are dropped.
+        backend: what runs the networks, one of ``backends.BACKENDS``.
+        device: torch device, 'cpu', 'cuda' or 'cuda:N' (onnxruntime runs on the CPU only).
+        threads: intra-op threads of the backend; 0: its default (one per core).
+
+    Raises:
+        InputError: 'field: reason' (or 'field / field: reason') for the first value, or
+            combination, it does not take.
+
+    """
+
+    score_threshold: float = _option(0.3, 0.0, 1.0)
+    max_instances: int = _option(1, 1, 100)
+    box_consistency_weight: float = _option(DEFAULT_BOX_CONSISTENCY_WEIGHT, 0.0, 1000.0)
+    refine: bool = _option(True)
+    refine_hypotheses: int = _option(3, 1, 8)
+    refine_min_score: float = _option(0.0, 0.0, 1.0)
+    backend: str = _option('onnxruntime', choices=BACKENDS)
+    device: str = _option('cpu')
+    threads: int = _option(0, 0, 256)
+
+    def __post_init__(self) -> None:
+        for option in fields(self):
+            check_option(option.name, getattr(self, option.name))
+        if self.backend != 'torch' and self.device != 'cpu':
+            raise InputError(f'backend / device: {self.backend} runs on the CPU only; use '
+                             f'the torch backend for device {self.device}')
+
+    @property
+    def candidates_per_detection(self) -> int:
+        """Rotation hypotheses solved (and refined) per detection: 1 without refinement."""
+        return self.refine_hypotheses if self.refine else 1
+
+
+_FIELDS = {option.name: option for option in fields(PipelineOptions)}
+_TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str}
+
+
+def option_range(name: str) -> tuple[float, float] | None:
+    """Return the inclusive (low, high) of option ``name``, None when it has no range."""
+    return _FIELDS[name].metadata['range']
+
+
+def check_option(name: str, value: Any) -> None:
+    """Raise InputError 'name: reason' when ``value`` is not one option ``name`` takes."""
+    option = _FIELDS[name]
+    expected = _TYPES[option.type]
+    # bool is an int in Python; an int is a fine float; neither is accepted the other way.
+    accepted = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
+    if expected is float:
+        accepted = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not accepted:
+        raise InputError(f'{name}: {value!r} is not of type {option.type}')
+    limits, choices = option.metadata['range'], option.metadata['choices']
+    if limits is not None and not limits[0] <= value <= limits[1]:
+        raise InputError(f'{name}: {value} is out of range [{limits[0]}, {limits[1]}]')
+    if choices is not None and value not in choices:
+        raise InputError(f'{name}: "{value}" is not one of {", ".join(choices)}')
+    if name == 'device' and value != 'cpu' and not value.startswith('cuda'):
+        raise InputError(f'{name}: "{value}" is not cpu, cuda or cuda:N')

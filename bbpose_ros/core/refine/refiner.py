@@ -1,0 +1,218 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Region-based pose refinement: the loop that aligns the model's silhouette with the image.
+
+The method is SRT3D's (Stoiber et al. 2022, "SRT3D: A Sparse Region-Based 3D Object
+Tracking Approach for the Real World"), in numpy and vectorised over lines and poses, in
+ICG's separation of concerns:
+
+* ``viewpoint_model``: the object's contour points and normals from many views (cached);
+* ``region_modality``: correspondence lines across the projected contour, their colour
+  statistics (``color_histograms``) and the pull they give the pose;
+* ``optimizer``: damped Newton steps on the 6-DoF pose;
+* here, ``refine_poses``: the iterations, the scale schedule (coarse lines see far, fine
+  ones are precise), the colour model's updates, the status of each pose and its score.
+
+Poses are model-to-camera (egocentric): x_cam = rotation @ x_model + translation, metres.
+Pixel coordinates are continuous with pixel centres at integers (``CameraIntrinsics``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.refine.optimizer import apply_step, newton_step
+from bbpose_ros.core.refine.region_modality import RegionModality
+from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+
+# A pose with fewer valid correspondence lines in an iteration stops: 'too_few_lines'.
+MIN_LINES = 6
+
+
+@dataclass(frozen=True)
+class RefinerConfig:
+    """
+    Settings of the region-based refinement.
+
+    Attributes:
+        scales: segment size in pixels, per correspondence iteration (the last repeats).
+        standard_deviations: expected contour error in pixels per iteration: it weights the
+            lines against the Tikhonov damping (larger: smaller, safer steps).
+        iterations: correspondence iterations; each re-projects the lines and computes
+            their distributions.
+        newton_steps: pose updates per correspondence iteration.
+        tikhonov_rotation: damping of the rotation step (per radian squared).
+        tikhonov_translation: damping of the translation step (per metre squared).
+        histogram_rate: after each correspondence iteration the colour histograms move this
+            far towards those seen at the current pose (0: keep the initial ones).
+        min_continuous_px: a line needs this many pixels of uninterrupted foreground and
+            background on both sides of its contour point (in pixels at every scale).
+
+    """
+
+    scales: tuple[int, ...] = (6, 4, 2, 1)
+    standard_deviations: tuple[float, ...] = (15.0, 5.0, 3.5, 1.5)
+    iterations: int = 20
+    newton_steps: int = 2
+    tikhonov_rotation: float = 1000.0
+    tikhonov_translation: float = 30000.0
+    histogram_rate: float = 1.0
+    min_continuous_px: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not self.scales or min(self.scales) < 1:
+            raise InputError(f'refinement scales must be integers >= 1, got {self.scales}')
+        if len(self.standard_deviations) == 0 or not min(self.standard_deviations) > 0:
+            raise InputError('refinement standard deviations must be > 0, got '
+                             f'{self.standard_deviations}')
+        if self.iterations < 1 or self.newton_steps < 1:
+            raise InputError('refinement needs at least one iteration and one Newton step')
+        if not (self.tikhonov_rotation > 0 and self.tikhonov_translation > 0):
+            raise InputError('Tikhonov damping must be > 0 (it keeps every Newton step '
+                             'solvable, also for a pose without lines)')
+        if not 0.0 <= self.histogram_rate <= 1.0:
+            raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """
+    The outcome of one refinement.
+
+    Attributes:
+        rotation: (3, 3) refined model-to-camera rotation.
+        translation: (3,) refined translation, metres.
+        score: share of the view's contour lines that agree with the colour model at the
+            end, 0..1: the pose's confidence (0 unless 'ok').
+        status: 'ok', or why the pose was given back as it started: 'behind_camera' (not
+            finite, or the model origin nearer than half a diameter in depth, at the start or
+            during the run), 'outside_image', 'too_few_lines'.
+        histograms: the colour model at the end; for a start with a given model (a
+            track's), the colours measured at the final pose, to blend into it.
+
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    score: float
+    status: str
+    histograms: ColorHistograms | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """Tell whether the refinement ran (the pose may still be wrong: see ``score``)."""
+        return self.status == 'ok'
+
+
+def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
+                 models: Sequence[ViewpointModel], rotations: Sequence[npt.ArrayLike],
+                 translations: Sequence[npt.ArrayLike], config: RefinerConfig,
+                 histograms: Sequence[ColorHistograms | None] | None = None,
+                 iterations: int | None = None, first_iteration: int = 0
+                 ) -> list[Refinement]:
+    """
+    Refine N poses in one image at once (all arrays carry the pose as first axis).
+
+    Args:
+        bins: (H, W) ``color_bins`` of the image; H x W must match ``camera``.
+        camera: CameraIntrinsics of the image.
+        models: per pose, the ViewpointModel of its object (all with the same number of
+            points per view).
+        rotations: per pose, the (3, 3) initial model-to-camera rotation.
+        translations: per pose, the (3,) initial translation, metres.
+        config: RefinerConfig.
+        histograms: per pose, a colour model to start from, or None (measured around the
+            initial pose).
+        iterations: correspondence iterations (default: the config's).
+        first_iteration: index of the first iteration in the scale schedule: tracks,
+            already close, start at a fine scale; a refinement stopped after k iterations
+            continues at k (with ``histogram_rate`` 1 and no given colours, the colour model
+            is the one measured at the pose it stopped at, as it would have been).
+
+    Returns:
+        Per pose, a Refinement; a start behind the camera or with too few contour lines
+        inside the image comes back unchanged with its status, never as an exception.
+
+    """
+    count = len(models)
+    if first_iteration < 0:
+        raise InputError(f'first_iteration must be >= 0, got {first_iteration}')
+    if bins.shape[:2] != (camera.height, camera.width):
+        raise InputError(f'image {bins.shape[1]}x{bins.shape[0]} does not match the camera '
+                         f'{camera.width}x{camera.height}')
+    if count == 0:
+        return []
+    start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
+    start_translation = np.array(translations, dtype=float).reshape(count, 3)
+    rotation, translation = start_rotation.copy(), start_translation.copy()
+    modality = RegionModality(models, bins, camera, config.min_continuous_px)
+    status = np.full(count, 'ok', dtype=object)
+    finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
+    rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
+    status[~finite | (translation[:, 2] <= 0.5 * modality.diameters)] = 'behind_camera'
+    given = list(histograms) if histograms is not None else [None] * count
+    # A given colour model (a track's) is kept through the iterations, as SRT3D does within
+    # a frame; one measured around the start is re-measured as the pose improves.
+    learning = np.array([h is None for h in given])
+    fresh_f, fresh_b, seen = modality.line_colors(rotation, translation)
+    status[(status == 'ok') & ~seen] = 'outside_image'
+    hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
+    hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
+    iterations = config.iterations if iterations is None else iterations
+    seen_at_end = None      # colours measured at the final poses, when an iteration did it
+    for iteration in range(first_iteration, first_iteration + iterations):
+        active = status == 'ok'
+        if not active.any():
+            break
+        scale = config.scales[min(iteration, len(config.scales) - 1)]
+        sigma = config.standard_deviations[min(iteration, len(config.standard_deviations) - 1)]
+        lines = modality.lines(rotation, translation, hist_f, hist_b, scale)
+        few = active & (lines.valid.sum(axis=1) < MIN_LINES)
+        status[few] = 'too_few_lines'
+        active &= ~few
+        for _ in range(config.newton_steps):
+            gradient, hessian = modality.gradient_hessian(rotation, translation, lines, scale,
+                                                          sigma)
+            apply_step(rotation, translation,
+                       *newton_step(gradient, hessian, config.tikhonov_rotation,
+                                    config.tikhonov_translation), active)
+            behind = active & (translation[:, 2] <= 0.5 * modality.diameters)
+            status[behind] = 'behind_camera'
+            active &= ~behind
+        if config.histogram_rate > 0.0:
+            seen_at_end = seen_f, seen_b, seen = modality.line_colors(rotation, translation)
+            update = active & seen & learning
+            rate = config.histogram_rate
+            hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
+            hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
+    scores = modality.scores(rotation, translation)
+    if not learning.all():      # what a track learns from this frame: the colours at the end
+        seen_f, seen_b, seen = seen_at_end or modality.line_colors(rotation, translation)
+        final = ~learning & seen
+        hist_f[final], hist_b[final] = seen_f[final], seen_b[final]
+    failed = status != 'ok'
+    rotation[failed], translation[failed] = start_rotation[failed], start_translation[failed]
+    return [Refinement(rotation[k], translation[k],
+                       float(scores[k]) if status[k] == 'ok' else 0.0, str(status[k]),
+                       ColorHistograms(hist_f[k], hist_b[k]))
+            for k in range(count)]
