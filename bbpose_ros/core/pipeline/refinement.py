@@ -35,6 +35,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
@@ -80,12 +81,14 @@ class PoseRefiner:
         self.viewpoint_models = dict(viewpoint_models)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
-                 poses: Sequence[PoseEstimate]) -> list[PoseEstimate]:
-        """Refine the poses; keep those scored >= min_score, in the given order."""
-        return self.best_of(image_rgb, camera, [[pose] for pose in poses])
+                 poses: Sequence[PoseEstimate],
+                 masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
+        """Refine the poses (with their masks, if any); keep those scored >= min_score."""
+        return self.best_of(image_rgb, camera, [[pose] for pose in poses], masks)
 
     def best_of(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
-                candidates: Sequence[Sequence[PoseEstimate]]) -> list[PoseEstimate]:
+                candidates: Sequence[Sequence[PoseEstimate]],
+                masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
         """
         Refine the candidate poses of each detection and keep the best-scored one.
 
@@ -97,6 +100,8 @@ class PoseRefiner:
             camera: its CameraIntrinsics.
             candidates: per detection, its candidate poses (e.g. one per rotation
                 hypothesis), all of the same object.
+            masks: per detection, a predicted foreground mask (the dense net's), or None:
+                the colours alone.
 
         Returns:
             Per detection, the best refined candidate when it scores >= min_score, in the
@@ -113,7 +118,7 @@ class PoseRefiner:
             and self.screening_iterations < self.config.iterations \
             and self.config.histogram_rate == 1.0
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
-                               self.screening_iterations if screened else None)
+                               masks, self.screening_iterations if screened else None)
         best = {}
         for (k, pose), result in zip(jobs, results):
             if k not in best or result.score > best[k][1].score:
@@ -123,7 +128,7 @@ class PoseRefiner:
             going = [(k, pose, result) for k, (pose, result) in best.items() if result.ok]
             finished = self._refine(
                 bins, camera, [(k, pose) for k, pose, _ in going],
-                [(result.rotation, result.translation) for *_, result in going],
+                [(result.rotation, result.translation) for *_, result in going], masks,
                 self.config.iterations - self.screening_iterations, self.screening_iterations)
             for (k, pose, _), result in zip(going, finished):
                 if not result.ok:       # a failure gives the candidate's own start back
@@ -141,10 +146,11 @@ class PoseRefiner:
                 refined.append(with_refinement(pose, result))
         return refined
 
-    def _refine(self, bins, camera, jobs, starts, iterations=None, first_iteration=0):
+    def _refine(self, bins, camera, jobs, starts, masks, iterations=None, first_iteration=0):
         return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
                             [r for r, _ in starts], [t for _, t in starts], self.config,
-                            iterations=iterations, first_iteration=first_iteration)
+                            iterations=iterations, first_iteration=first_iteration,
+                            masks=None if masks is None else masks.take([k for k, _ in jobs]))
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],

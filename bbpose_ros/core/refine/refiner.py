@@ -41,6 +41,7 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import apply_step, newton_step
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
@@ -67,6 +68,9 @@ class RefinerConfig:
             far towards those seen at the current pose (0: keep the initial ones).
         min_continuous_px: a line needs this many pixels of uninterrupted foreground and
             background on both sides of its contour point (in pixels at every scale).
+        mask_weight: for a pose refined with a predicted foreground mask, how much the
+            mask counts against the colours (0..1, 1: the mask alone; see
+            ``region_modality``).
 
     """
 
@@ -78,6 +82,7 @@ class RefinerConfig:
     tikhonov_translation: float = 30000.0
     histogram_rate: float = 1.0
     min_continuous_px: float = 3.0
+    mask_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -92,6 +97,8 @@ class RefinerConfig:
                              'solvable, also for a pose without lines)')
         if not 0.0 <= self.histogram_rate <= 1.0:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
+        if not 0.0 <= self.mask_weight <= 1.0:
+            raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
 
 
 @dataclass(frozen=True)
@@ -128,8 +135,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                  models: Sequence[ViewpointModel], rotations: Sequence[npt.ArrayLike],
                  translations: Sequence[npt.ArrayLike], config: RefinerConfig,
                  histograms: Sequence[ColorHistograms | None] | None = None,
-                 iterations: int | None = None, first_iteration: int = 0
-                 ) -> list[Refinement]:
+                 iterations: int | None = None, first_iteration: int = 0,
+                 masks: ForegroundMasks | None = None) -> list[Refinement]:
     """
     Refine N poses in one image at once (all arrays carry the pose as first axis).
 
@@ -148,6 +155,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             already close, start at a fine scale; a refinement stopped after k iterations
             continues at k (with ``histogram_rate`` 1 and no given colours, the colour model
             is the one measured at the pose it stopped at, as it would have been).
+        masks: per pose, a predicted foreground mask (``foreground_masks``), or None: the
+            colours alone.
 
     Returns:
         Per pose, a Refinement; a start behind the camera or with too few contour lines
@@ -165,7 +174,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
     start_translation = np.array(translations, dtype=float).reshape(count, 3)
     rotation, translation = start_rotation.copy(), start_translation.copy()
-    modality = RegionModality(models, bins, camera, config.min_continuous_px)
+    modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
+                              config.mask_weight)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]

@@ -20,7 +20,8 @@ The region modality (SRT3D): correspondence lines across the projected contour.
   2D normal (pointing out of the object);
 * the pixels of a line, grouped in segments of ``scale`` pixels, get a foreground
   probability from the colour histograms; a smoothed step function slid along the line gives
-  a discrete distribution of where the contour is on that line: its mean and variance;
+  a discrete distribution of where the contour is on that line: its mean and variance; a
+  predicted silhouette mask (``foreground_masks``) may stand in for or mix with the colours;
 * ``RegionModality.gradient_hessian`` turns them into the pull on the 6-DoF pose that
   ``optimizer.newton_step`` solves for.
 
@@ -39,6 +40,7 @@ import numpy as np
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine.color_histograms import BINS_PER_CHANNEL
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 FUNCTION_LENGTH = 8         # segments of the smoothed step function
@@ -91,12 +93,18 @@ class RegionModality:
         camera: CameraIntrinsics of the image.
         min_continuous_px: a line needs this many pixels of uninterrupted foreground and
             background on both sides of its contour point.
+        masks: per pose, a predicted foreground mask (``foreground_masks``), or None.
+        mask_weight: where a pose has a mask, a pixel's foreground log-odds are
+            (1 - w) * the colours' + w * the mask's (1: the mask alone).
 
     """
 
     def __init__(self, models: Sequence[ViewpointModel], bins: np.ndarray,
-                 camera: CameraIntrinsics, min_continuous_px: float) -> None:
+                 camera: CameraIntrinsics, min_continuous_px: float,
+                 masks: ForegroundMasks | None = None, mask_weight: float = 1.0) -> None:
         self.min_continuous_px = min_continuous_px
+        self.masks = masks
+        self.mask_weight = float(mask_weight)
         self.bins = bins.ravel()
         self.camera = camera
         self.diameters = np.array([m.diameter for m in models])
@@ -201,8 +209,13 @@ class RegionModality:
         log_ratio_table = np.clip(np.log(hist_f + tiny) - np.log(hist_b + tiny),
                                   -_MAX_LOG_RATIO, _MAX_LOG_RATIO).astype(np.float32).ravel()
         pose = np.arange(len(rotation))[:, None, None] * _BINS
-        log_ratio = log_ratio_table[pose + line_bins].reshape(
-            *valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
+        pixel_log_ratio = log_ratio_table[pose + line_bins]
+        if self.masks is not None:
+            weight = np.where(self.masks.present, self.mask_weight, 0.0).astype(np.float32)
+            weight = weight[:, None, None]
+            pixel_log_ratio = (1.0 - weight) * pixel_log_ratio \
+                + weight * self.masks.log_odds(cols, rows)
+        log_ratio = pixel_log_ratio.reshape(*valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
         seg_f = 1.0 / (1.0 + np.exp(-np.clip(log_ratio, -50.0, 50.0)))
         # h_f * p_f + h_b * (1 - p_f) = h_b + (h_f - h_b) * p_f, in float32 (the biggest array)
         terms = _H_B32 + seg_f[..., _WINDOWS] * _H_DIFF32
