@@ -137,7 +137,7 @@ def test_refiner_converges_on_renders(viewpoint_models, lmo_models, name, seed):
 
 
 def mask_over_box(silhouette, size=32, margin=0.1):
-    """A dense net's view of a silhouette: its cells' coverage over a square around it."""
+    """Make a dense net's view of a silhouette: its cells' coverage of a square around it."""
     rows, cols = np.nonzero(silhouette)
     centre = np.array([cols.mean(), rows.mean()])
     half = (1 + margin) * max(np.ptp(cols), np.ptp(rows)) / 2 + 1
