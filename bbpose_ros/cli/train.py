@@ -71,6 +71,10 @@ def add_parser(subparsers):
     _common(crops)
     crops.add_argument('--crops', type=int, default=80000, help='crops to render')
     crops.add_argument('--workers', type=int, default=2, help='rendering processes')
+    crops.add_argument('--dense-size', type=int, default=0, metavar='M',
+                       help="also store the dense head's targets (model coordinates, visible "
+                            'and amodal masks) on an M x M grid per crop; M must divide twice '
+                            'the crop size (default 0: none, a version-1 cache)')
     _crop_options(crops)
     _backgrounds_option(crops)
     add_inplane_argument(crops)
@@ -328,7 +332,8 @@ def run_render_crops(args):
     scenes = CropScenes(load_bop_models(args.dataset, args.objects), camera, seed=args.seed,
                         config=with_inplane_range(CROP_SYNTH_CONFIG, args),
                         crop_size=args.crop_size, context=args.context,
-                        box_sigma=args.box_sigma, backgrounds=_photos(args))
+                        box_sigma=args.box_sigma, backgrounds=_photos(args),
+                        dense_size=args.dense_size)
     build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
     return 0
 
