@@ -114,7 +114,8 @@ class MeshRenderer:
     ``camera`` is the ``CameraIntrinsics`` of every image; ``meshes`` maps names to
     ``RenderMesh``. ``near`` and ``far`` (metres) bound the depth range. A pixel belongs to
     a mesh when its centre (OpenCV convention) is inside a projected triangle; there is no
-    anti-aliasing. Not thread-safe: use one renderer per process or thread.
+    anti-aliasing. Not thread-safe: use one renderer per thread. Several renderers may take
+    turns in one process: each makes its own context current before drawing.
     """
 
     def __init__(self, camera: CameraIntrinsics, meshes: Mapping[str, RenderMesh],
@@ -198,6 +199,8 @@ class MeshRenderer:
                     'before the parent renders.')
             self._gl = _GlState(self.camera, self.meshes, self.near, self.far)
             self._pid = _context_pid = os.getpid()
+        # Another renderer of this process may have made its own context current since.
+        self._gl.ctx.__enter__()
         return self._gl
 
 

@@ -40,11 +40,12 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.nets.crops import FILL_VALUE, square_boxes
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
-from bbpose_ros.core.synth.dense_targets import dense_targets, model_box
+from bbpose_ros.core.synth.dense_targets import dense_targets
 from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
     random_pixel

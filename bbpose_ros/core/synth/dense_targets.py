@@ -23,20 +23,12 @@ render pixels around it when they all show the target (exact for a planar patch)
 mean over the target's pixels of the cell. Its mask targets are the shares of the cell that
 show the target (visible) and that the target's whole silhouette covers (amodal).
 
-Coordinates are normalised by the model's axis-aligned box (``model_box``):
-``(x - box_min) / box_size``, so the model's points lie in [0, 1]^3.
+Coordinates are normalised by the model's axis-aligned box (``geometry.dense_grid``).
 """
 
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
-
-
-def model_box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(3,) minimum and (3,) size (metres) of the axis-aligned box of (V, 3) model points."""
-    vertices = np.asarray(vertices, dtype=np.float64)
-    low = vertices.min(axis=0)
-    return low, vertices.max(axis=0) - low
 
 
 def dense_targets(model_coordinates: np.ndarray, visible: np.ndarray, amodal: np.ndarray,
@@ -50,7 +42,7 @@ def dense_targets(model_coordinates: np.ndarray, visible: np.ndarray, amodal: np
         visible: (R, R) bool, render pixels where the target is the front-most surface.
         amodal: (R, R) bool, the target's whole (unoccluded) silhouette.
         size: grid side M; R must be a multiple of it.
-        box_min, box_size: (3,) the model box (``model_box``), metres.
+        box_min, box_size: (3,) the model box (``dense_grid.model_box``), metres.
 
     Returns:
         (M, M, 3) float32 normalised coordinates (0 where no target pixel), (M, M) float32
@@ -76,14 +68,3 @@ def dense_targets(model_coordinates: np.ndarray, visible: np.ndarray, amodal: np
     amodal_share = amodal.reshape(size, cell, size, cell).mean(axis=(1, 3))
     return (normalised.astype(np.float32), (count / cell ** 2).astype(np.float32),
             amodal_share.astype(np.float32))
-
-
-def cell_centres_uv(square_uv: np.ndarray, size: int) -> np.ndarray:
-    """
-    (M, M, 2) full-frame pixel coordinates (u, v) of the grid cell centres of a crop.
-
-    ``square_uv`` is the crop's square [u_min, v_min, u_max, v_max] (continuous pixels).
-    """
-    # The square's edges are the crop's pixel edges (``CameraIntrinsics.cropped``).
-    steps = (np.arange(size) + 0.5) * ((square_uv[2] - square_uv[0]) / size)
-    return np.stack(np.meshgrid(square_uv[0] + steps, square_uv[1] + steps), axis=-1)
