@@ -25,9 +25,11 @@ from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.dense_grid import cell_centres_uv, model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
-from bbpose_ros.core.nets.crops import box_centre_rays
+from bbpose_ros.core.nets.crops import box_centre_rays, square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.pipeline.backends import make_runner
+from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
+from bbpose_ros.core.pipeline.pose_pipeline import Detection
 from bbpose_ros.core.pipeline.weights import load_network, save_weights
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, projected_box_uv, RenderMesh
 from bbpose_ros.core.synth.crop_scenes import CropScenes
@@ -51,7 +53,7 @@ def _renderer(camera, models, names):
 
 @pytest.fixture(scope='module')
 def dense_scenes(lmo_models, lmo_frames):
-    """CropScenes of TARGETS with 16 x 16 dense targets (96 px crops, render 192)."""
+    """Build the CropScenes of TARGETS with 16 x 16 dense targets (96 px crops, render 192)."""
     scenes = CropScenes({n: lmo_models[n] for n in TARGETS}, lmo_frames[0].camera, seed=5,
                         crop_size=96, dense_size=16)
     _renderer(lmo_frames[0].camera, lmo_models, ['ape'])
@@ -170,8 +172,8 @@ def _axis_angle(axis, angle):
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def test_dense_cache_feeds_batches_and_a_version_1_cache_is_refused(dense_scenes, lmo_models,
-                                                                   tmp_path, lmo_frames):
+def test_dense_cache_feeds_batches_and_a_version_1_cache_is_refused(
+        dense_scenes, lmo_models, tmp_path, lmo_frames):
     build_crop_cache(dense_scenes, tmp_path / 'dense', 6, workers=1, progress=False,
                      shard_size=3)
     meta = json.loads((tmp_path / 'dense' / 'meta.json').read_text())
@@ -257,3 +259,19 @@ def test_pnp_needs_enough_masked_cells(lmo_frames):
     probability[0, :5] = 0.9
     assert pose_from_dense_maps(coordinates, probability, np.array([0, 0, 64, 64.0]),
                                 lmo_frames[0].camera, np.zeros(3), np.ones(3)) is None
+
+
+def test_the_stage_cuts_crops_as_qnet_and_solves_one_pose_each(lmo_frames, lmo_models):
+    torch.manual_seed(0)
+    frame = lmo_frames[0]
+    net = DenseNet(DenseConfig(tuple(lmo_models), crop_size=32, channels=16)).eval()
+    stage = DenseCorrespondenceEstimator(net, lmo_models)
+    detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances]
+    maps, poses = stage(frame.load_image(), frame.camera, detections)
+    count = len(detections)
+    assert maps.coordinates.shape == (count, 16, 16, 3) and maps.visible.shape == (count, 16, 16)
+    np.testing.assert_allclose(maps.squares_uv, square_boxes(
+        np.array([d.box_uv for d in detections]), net.config.context))
+    assert len(poses) == count
+    empty, none = stage(frame.load_image(), frame.camera, [])
+    assert empty.coordinates.shape == (0, 16, 16, 3) and none == []

@@ -100,6 +100,8 @@ def _conv_bn(cin, cout, kernel):
 
 class DenseNet(nn.Module):
     """
+    The dense net for one or several objects.
+
     ``forward(crops, object_index)``: crops (N, 3, S, S) float RGB in 0..1, object_index (N,)
     long -> (N, 5, M, M): normalised coordinates (3), visible logit, amodal logit of each
     crop's own object, M = S / 2.
@@ -122,7 +124,7 @@ class DenseNet(nn.Module):
             self.output.bias.view(-1, PER_OBJECT)[:, :3] = 0.5   # the model box's centre
 
     def forward(self, crops: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
-        """Maps (N, 5, M, M) of crops (N, 3, S, S) of objects ``object_index`` (N,)."""
+        """Compute the maps (N, 5, M, M) of crops (N, 3, S, S) of ``object_index`` (N,)."""
         s2, s4, s8, s16 = self.trunk.forward_features(crops, TAPS)
         x = self.laterals[3](s16)
         x = F.interpolate(x, scale_factor=2.0, mode='nearest') + self.laterals[2](s8)

@@ -249,8 +249,10 @@ class _GlState:
 
     def render_shaded(self, draws, lighting, camera, coordinates):
         """
+        Draw all draws; return fresh arrays of their colours, ids and coordinates.
+
         Shaded colours (H, W, 3), instance ids (H, W) and, with ``coordinates``, model
-        coordinates (H, W, 3) float32 (else None) of all draws, fresh arrays.
+        coordinates (H, W, 3) float32 (else None).
         """
         ctx, program = self.ctx, self.shaded
         program['u_projection'].write(_gl_matrix(opengl_projection(camera, self.near,

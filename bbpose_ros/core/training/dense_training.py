@@ -166,12 +166,12 @@ class DenseBatches:
         return index
 
     def train_batch(self) -> tuple[torch.Tensor, ...]:
-        """A training batch: see ``make``."""
+        """Draw a training batch (see ``make``)."""
         ids = self.rng.choice(self.train_ids, self.settings.batch)
         return self.make(ids, self.settings.augment)
 
     def targets(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(n, M, M, 3) canonical normalised coordinates, (n, M, M) visible, amodal shares."""
+        """Return (n, M, M, 3) canonical coordinates, (n, M, M) visible and amodal shares."""
         cache = self.cache
         coordinates = cache.coordinates[ids].astype(np.float32)
         for row, crop in enumerate(ids):
@@ -186,8 +186,10 @@ class DenseBatches:
 
     def make(self, ids: np.ndarray, augment: float) -> tuple[torch.Tensor, ...]:
         """
-        Batch of crops ``ids``: images (B, 3, S, S), object index (B,), coordinates (B, 3, M,
-        M), visible and amodal shares (B, M, M).
+        Build the batch of crops ``ids``.
+
+        Returns images (B, 3, S, S), object index (B,), coordinates (B, 3, M, M), visible
+        and amodal shares (B, M, M).
         """
         config = self.config
         crops, _ = self.cache.input_crops(ids, None, None, config.crop_size, config.context)
@@ -250,9 +252,11 @@ def maps_to_numpy(maps: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarra
 def dense_validation(network: DenseNet, batches: DenseBatches, device: TrainingDevice,
                      count: int = 256, seed: int = 12345) -> dict[str, float]:
     """
-    Score held-out crops: loss and parts, median coordinate error (mm, on the target's
-    cells), mask IoUs, and the PnP pose (``pose_from_dense_maps``): median rotation error
-    (deg, symmetry-aware) and translation error (mm).
+    Score held-out crops.
+
+    Loss and parts, median coordinate error (mm, on the target's cells), mask IoUs, and
+    the PnP pose (``pose_from_dense_maps``): median rotation error (deg, symmetry-aware)
+    and translation error (mm).
     """
     rng = np.random.default_rng(seed)
     ids = np.sort(rng.choice(batches.val_ids, min(count, len(batches.val_ids)),

@@ -43,7 +43,7 @@ from bbpose_ros.core.pipeline.backends import TorchRunner
 from bbpose_ros.core.pipeline.estimators import BoxDetector, QNetRotationEstimator
 from bbpose_ros.core.pipeline.pose_pipeline import Detection, PoseEstimate
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
-from bbpose_ros.core.training.dense_training import mask_iou, maps_to_numpy
+from bbpose_ros.core.training.dense_training import maps_to_numpy, mask_iou
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
@@ -170,7 +170,7 @@ class RealDenseCrops:
         if renderer is not None:
             renderer.close()
         if not self.instances:
-            raise InputError('no real instance of the dense net\'s objects to validate on')
+            raise InputError("no real instance of the dense net's objects to validate on")
         self.crops = np.concatenate(crops)
         self.visible, self.amodal = np.array(visible), np.array(amodal)
         self.object_index = np.array([config.objects.index(i.object_name)
@@ -180,7 +180,7 @@ class RealDenseCrops:
         return len(self.instances)
 
     def predict(self, network: DenseNet, batch: int = 64) -> tuple[np.ndarray, ...]:
-        """The net's maps of every crop: coordinates (n, M, M, 3), visible, amodal (n, M, M)."""
+        """Return the maps of every crop: coordinates (n, M, M, 3), visible, amodal (n, M, M)."""
         runner = TorchRunner(network)
         parts = [maps_to_numpy(runner(self.crops[k:k + batch],
                                       self.object_index[k:k + batch]))
@@ -189,6 +189,8 @@ class RealDenseCrops:
 
     def report(self, network: DenseNet) -> dict[str, Any]:
         """
+        Score the net's PnP poses and masks.
+
         ``bbpose eval``'s {'objects', 'mean'} figures of the PnP poses (ground-truth boxes,
         unrefined; an instance PnP cannot solve counts as missed), plus per object and on
         average the mean visible and amodal mask IoU ('visible_iou', 'amodal_iou').
@@ -217,7 +219,7 @@ class RealDenseCrops:
         return report
 
     def figures(self, network: DenseNet) -> dict[str, float]:
-        """The log's real-frame figures: means over objects of ``report``."""
+        """Return the log's real-frame figures: means over objects of ``report``."""
         mean = self.report(network)['mean']
         return {'real_re_median_deg': mean['re_median_deg'],
                 'real_te_median_mm': mean['te_median_mm'],

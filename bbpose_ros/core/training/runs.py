@@ -40,11 +40,11 @@ from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0, load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import save_weights
-from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
-                                                        DetectorBatches, DetectorTrainSettings)
 from bbpose_ros.core.training.dense_training import (dense_step, dense_validation,
                                                      DenseBatches, DenseTrainSettings,
                                                      freeze_early_blocks)
+from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
+                                                        DetectorBatches, DetectorTrainSettings)
 from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (qnet_step, qnet_validation, QNetBatches,
