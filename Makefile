@@ -89,3 +89,10 @@ weights: setup photos
 		--backbone lite0 --crop-size 64 --channels 64 --rotation-target allocentric \
 		--sign-invariant --hypotheses 8 --max-inplane-deg 45 --steps 6000 --every 500 \
 		--threads 1 --real-val --export bbpose_ros/weights/qnet.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
+		--seed 3 --crops 24000 --crop-size 96 --dense-size 32 --backgrounds $(PHOTOS) \
+		--inplane-range-deg=-60,60
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
+		--run-dir $(CACHE)/runs/dense_lite0 --crop-size 64 --steps 4000 --every 500 \
+		--batch 32 --lr 2e-3 --threads 1 --seed 7 --real-val \
+		--export bbpose_ros/weights/dense.pt

@@ -26,6 +26,8 @@
   time budget, on ``--device`` cpu or cuda; ``--run-dir`` holds checkpoint.pt (resumed, on
   either device), log.csv, train.log, loss.png and the weight file; ``--export`` copies the
   weight file (e.g. to bbpose_ros/weights/).
+* ``bbpose train dense``: the dense correspondence net (model coordinates and masks per
+  crop cell) on a crop cache rendered with ``--dense-size``.
 * ``bbpose train verifier``: the detector's second stage, on the candidates a trained
   detector (``--detector-weights``) finds in a scene cache; writes both stages in one file.
 * ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
@@ -71,6 +73,10 @@ def add_parser(subparsers):
     _common(crops)
     crops.add_argument('--crops', type=int, default=80000, help='crops to render')
     crops.add_argument('--workers', type=int, default=2, help='rendering processes')
+    crops.add_argument('--dense-size', type=int, default=0, metavar='M',
+                       help="also store the dense head's targets (model coordinates, visible "
+                            'and amodal masks) on an M x M grid per crop; M must divide twice '
+                            'the crop size (default 0: none, a version-1 cache)')
     _crop_options(crops)
     _backgrounds_option(crops)
     add_inplane_argument(crops)
@@ -103,6 +109,14 @@ def add_parser(subparsers):
     _detector_options(sub.choices['detector'])
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
+    dense = sub.add_parser('dense', help='train the dense correspondence net',
+                           description='Train the dense net (model coordinates, visible and '
+                                       'amodal masks per cell of a crop) on crop caches '
+                                       'rendered with "render-crops --dense-size".')
+    _common(dense)
+    _budget(dense, steps=8000)
+    _dense_options(dense)
+    dense.set_defaults(func=run_dense)
     verifier = sub.add_parser('verifier', help="train the detector's second stage")
     _common(verifier)
     _budget(verifier, steps=8000)
@@ -220,6 +234,27 @@ def _qnet_options(parser):
                              'boxes (measured only, never trained on)')
 
 
+def _dense_options(parser):
+    parser.add_argument('--crop-size', type=int, default=64,
+                        help='input crop side, a multiple of 16; the maps are half of it '
+                             '(default %(default)s)')
+    parser.add_argument('--channels', type=int, default=64,
+                        help="the decoder's width at stride 4 (default %(default)s)")
+    parser.add_argument('--coordinate-weight', type=float, default=None,
+                        help='weight of the coordinate L1 beside the mask BCEs (default 1)')
+    parser.add_argument('--frozen-blocks', type=int, default=None,
+                        help="trunk blocks (after the stem) kept at ImageNet's weights "
+                             '(default 5: strides 2 to 8)')
+    _extra_cache_option(parser, 'crop')
+    parser.add_argument('--trunk-lr-scale', type=float, default=None,
+                        help="the trunk's learning rate / the decoder's (0 freezes it; "
+                             'default 0.1)')
+    parser.add_argument('--real-val', action='store_true',
+                        help="also score the real frames of --dataset's test split at every "
+                             'checkpoint (ground-truth boxes, PnP poses, mask IoU); they are '
+                             'never trained on')
+
+
 def _verifier_options(parser):
     parser.add_argument('--detector-weights', type=Path, required=True,
                         help='the trained detector whose candidates are re-scored (its '
@@ -248,7 +283,8 @@ def _settings(settings, args):
     if getattr(args, 'trunk_lr_scale', None) is not None and args.trunk_lr_scale < 0:
         raise InputError(f'--trunk-lr-scale must be >= 0 (0 freezes the trunk), '
                          f'got {args.trunk_lr_scale}')
-    for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop'):
+    for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop', 'coordinate_weight',
+                 'frozen_blocks'):
         if getattr(args, name, None) is not None:
             setattr(settings, name, getattr(args, name))
     return settings
@@ -328,7 +364,8 @@ def run_render_crops(args):
     scenes = CropScenes(load_bop_models(args.dataset, args.objects), camera, seed=args.seed,
                         config=with_inplane_range(CROP_SYNTH_CONFIG, args),
                         crop_size=args.crop_size, context=args.context,
-                        box_sigma=args.box_sigma, backgrounds=_photos(args))
+                        box_sigma=args.box_sigma, backgrounds=_photos(args),
+                        dense_size=args.dense_size)
     build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
     return 0
 
@@ -457,6 +494,34 @@ def run_qnet(args):
     train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
                args.seed, args.threads, args.export, args.every, real_crops=real,
                device=device)
+    return 0
+
+
+def run_dense(args):
+    """Train the dense correspondence net."""
+    from bbpose_ros.core.data.models import load_bop_models
+    from bbpose_ros.core.nets.dense import DenseConfig
+    from bbpose_ros.core.training.crop_cache import CropCache
+    from bbpose_ros.core.training.dense_training import DenseTrainSettings
+    from bbpose_ros.core.training.runs import train_dense
+    device = training_device(args.device)
+    cache = CropCache([args.cache, *args.extra_cache], args.max_shards)
+    models = load_bop_models(args.dataset, args.objects or cache.objects)
+    try:
+        config = DenseConfig(tuple(models), crop_size=args.crop_size, context=cache.context,
+                             channels=args.channels)
+    except ValueError as err:
+        raise InputError(f'invalid dense net options: {err}') from None
+    settings = _settings(DenseTrainSettings(), args)
+    real = None
+    if args.real_val:
+        from bbpose_ros.core.data.bop import BopDataset
+        from bbpose_ros.core.training.real_validation import RealDenseCrops
+        real = RealDenseCrops(BopDataset(args.dataset).frames(), config,
+                              load_bop_models(args.dataset))
+    train_dense(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
+                args.seed, args.threads, args.export, args.every, real_crops=real,
+                device=device)
     return 0
 
 

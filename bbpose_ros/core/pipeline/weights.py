@@ -19,12 +19,15 @@ A file is a ``torch.save`` of ``{'metadata': dict, 'state_dict': dict}`` that lo
 ``weights_only=True`` (no pickled code). Metadata fields:
 
 * ``format_version``: FORMAT_VERSION; other versions are refused.
-* ``kind``: 'qnet' or 'detector'.
+* ``kind``: 'qnet', 'detector' or 'dense' (the dense correspondence net).
 * ``objects``: object names, in the network's output order.
 * ``input_size``: [width, height] of the network input in pixels.
 * ``rotation_convention``: Q-Net only: {'quaternion_order': 'wxyz', 'hemisphere': 'q0>=0',
   'target': 'egocentric' | 'allocentric', 'frame': 'model-to-camera (OpenCV optical)'}.
-* ``architecture``: the QNetConfig or DetectorConfig as a dict.
+* ``coordinate_convention``: dense only: {'normalisation': 'model box', 'map_size': M,
+  'channels': [...], 'symmetric_targets': ...}: what the output maps mean
+  (``geometry.dense_grid``, ``nets.dense``).
+* ``architecture``: the QNetConfig, DetectorConfig or DenseConfig as a dict.
 * ``training``: {'command', 'git_commit', 'steps', ...} as recorded by the trainer.
 
 Any mismatch or a corrupt file raises InputError naming the file and the field.
@@ -38,6 +41,7 @@ import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 
@@ -46,14 +50,20 @@ WEIGHTS_DIR = Path(__file__).resolve().parents[2] / 'weights'
 DEFAULT_DETECTOR_WEIGHTS = WEIGHTS_DIR / 'detector.pt'
 DEFAULT_QNET_WEIGHTS = WEIGHTS_DIR / 'qnet.pt'
 QUATERNION_ORDER = 'wxyz'
+# What a dense net's maps mean; a file saying otherwise is refused.
+DENSE_COORDINATES = {'normalisation': 'model box: (x - min) / size, metres, model frame',
+                     'channels': ['x', 'y', 'z', 'visible_logit', 'amodal_logit'],
+                     'symmetric_targets': 'closest to the identity (allocentric)'}
 
-_KINDS = {'qnet': (QNetConfig, QNet), 'detector': (DetectorConfig, CenterBoxNet)}
+_KINDS = {'qnet': (QNetConfig, QNet), 'detector': (DetectorConfig, CenterBoxNet),
+          'dense': (DenseConfig, DenseNet)}
+Config = QNetConfig | DetectorConfig | DenseConfig
+Network = QNet | CenterBoxNet | DenseNet
 
 
-def metadata_for(kind: str, config: QNetConfig | DetectorConfig,
-                 training: Mapping[str, Any]) -> dict[str, Any]:
+def metadata_for(kind: str, config: Config, training: Mapping[str, Any]) -> dict[str, Any]:
     """Build the metadata dict of a network of ``kind`` with ``config`` and training record."""
-    if kind == 'qnet':
+    if kind in ('qnet', 'dense'):
         input_size = [config.crop_size, config.crop_size]
     else:
         input_size = list(config.input_size)
@@ -65,14 +75,15 @@ def metadata_for(kind: str, config: QNetConfig | DetectorConfig,
             'quaternion_order': QUATERNION_ORDER, 'hemisphere': 'q0>=0',
             'target': config.rotation_target,
             'frame': 'model-to-camera (OpenCV optical)'}
+    if kind == 'dense':
+        metadata['coordinate_convention'] = dict(DENSE_COORDINATES, map_size=config.map_size)
     return metadata
 
 
-def save_weights(path: Path | str, network: QNet | CenterBoxNet, kind: str,
-                 training: Mapping[str, Any],
-                 config: QNetConfig | DetectorConfig | None = None) -> None:
+def save_weights(path: Path | str, network: Network, kind: str,
+                 training: Mapping[str, Any], config: Config | None = None) -> None:
     """
-    Write ``network`` (QNet or CenterBoxNet) with its metadata, atomically.
+    Write ``network`` (QNet, CenterBoxNet or DenseNet) with its metadata, atomically.
 
     ``config`` is recorded instead of ``network.config`` when given: a fully convolutional
     detector may be run at another input size than the one it trained at.
@@ -110,13 +121,13 @@ def read_weights(path: Path | str, kind: str) -> tuple[dict[str, Any], dict[str,
 
 def load_network(path: Path | str, kind: str, objects: Iterable[str] | None = None,
                  input_size: Sequence[int] | None = None,
-                 rotation_target: str | None = None) -> QNet | CenterBoxNet:
+                 rotation_target: str | None = None) -> Network:
     """
     Build the network stored in ``path`` and check it against what the caller needs.
 
     Args:
         path: weight file.
-        kind: 'qnet' or 'detector'.
+        kind: 'qnet', 'detector' or 'dense'.
         objects: names the caller needs; each must be in the file's ``objects``.
         input_size: optional expected [width, height].
         rotation_target: optional expected Q-Net target ('egocentric' / 'allocentric').
@@ -148,6 +159,9 @@ def load_network(path: Path | str, kind: str, objects: Iterable[str] | None = No
         if rotation_target and rotation_target != config.rotation_target:
             raise InputError(f'weight file {path}: field "rotation_convention.target" is '
                              f'{config.rotation_target!r}, expected {rotation_target!r}')
+    if kind == 'dense':
+        _expect(path, metadata, 'coordinate_convention',
+                dict(DENSE_COORDINATES, map_size=config.map_size))
     network = network_type(config)
     try:
         network.load_state_dict(state)

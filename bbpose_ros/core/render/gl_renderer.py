@@ -95,6 +95,9 @@ class RenderResult:
             inside the image.
         full_pixel_counts: {draw index: int} pixel count of that whole silhouette, parts
             outside the image included (the denominator of BOP's visib_fract).
+        model_coordinates: (H, W, 3) float32 model coordinates (metres, the front-most
+            draw's own model frame) of the surface point seen at each pixel centre, 0 where
+            no mesh covers it; None unless asked for (``render(..., coordinates=True)``).
 
     """
 
@@ -102,6 +105,7 @@ class RenderResult:
     instance_ids: np.ndarray
     full_masks: dict[int, np.ndarray]
     full_pixel_counts: dict[int, int]
+    model_coordinates: np.ndarray | None = None
 
 
 class MeshRenderer:
@@ -111,7 +115,8 @@ class MeshRenderer:
     ``camera`` is the ``CameraIntrinsics`` of every image; ``meshes`` maps names to
     ``RenderMesh``. ``near`` and ``far`` (metres) bound the depth range. A pixel belongs to
     a mesh when its centre (OpenCV convention) is inside a projected triangle; there is no
-    anti-aliasing. Not thread-safe: use one renderer per process or thread.
+    anti-aliasing. Not thread-safe: use one renderer per thread. Several renderers may take
+    turns in one process: each makes its own context current before drawing.
     """
 
     def __init__(self, camera: CameraIntrinsics, meshes: Mapping[str, RenderMesh],
@@ -141,14 +146,16 @@ class MeshRenderer:
 
     def render(self, draws: Sequence[Draw], lighting: Lighting,
                full_mask_indices: Iterable[int] = (),
-               camera: CameraIntrinsics | None = None) -> RenderResult:
+               camera: CameraIntrinsics | None = None,
+               coordinates: bool = False) -> RenderResult:
         """
         Draw ``draws`` (a sequence of ``Draw``) in one image under ``lighting``.
 
         ``full_mask_indices`` lists the draws whose full (unoccluded) silhouette is wanted.
         Every draw must lie in front of the camera. ``camera`` replaces the renderer's
         intrinsics for this image (same width and height), e.g. to render a crop of a larger
-        frame (``CameraIntrinsics.cropped``). Returns a ``RenderResult``.
+        frame (``CameraIntrinsics.cropped``). ``coordinates`` also reads back the model
+        coordinates of every pixel. Returns a ``RenderResult``.
         """
         camera = self.camera if camera is None else camera
         if (camera.width, camera.height) != (self.camera.width, self.camera.height):
@@ -160,7 +167,7 @@ class MeshRenderer:
         if unknown:
             raise InputError(f'unknown mesh name(s): {", ".join(unknown)}')
         gl = self._context()
-        rgb, ids = gl.render_shaded(draws, lighting, camera)
+        rgb, ids, model_coordinates = gl.render_shaded(draws, lighting, camera, coordinates)
         boxes = [projected_box_uv(camera, self.meshes[draw.mesh].hull_points,
                                   draw.rotation, draw.translation) for draw in draws]
         full_masks, counts = {}, {}
@@ -171,7 +178,7 @@ class MeshRenderer:
             else:
                 full_masks[index], counts[index] = gl.render_silhouette(
                     draws[index], boxes[index], camera)
-        return RenderResult(rgb, ids, full_masks, counts)
+        return RenderResult(rgb, ids, full_masks, counts, model_coordinates)
 
     def _is_unoccluded_and_inside(self, index, boxes):
         """Tell whether no other draw's box overlaps draw ``index``'s box, inside the image."""
@@ -193,6 +200,8 @@ class MeshRenderer:
                     'before the parent renders.')
             self._gl = _GlState(self.camera, self.meshes, self.near, self.far)
             self._pid = _context_pid = os.getpid()
+        # Another renderer of this process may have made its own context current since.
+        self._gl.ctx.__enter__()
         return self._gl
 
 
@@ -224,21 +233,28 @@ class _GlState:
                                  index_element_size=4))
         size = (camera.width, camera.height)
         self.frame = ctx.framebuffer(
-            color_attachments=[ctx.renderbuffer(size, 4), ctx.renderbuffer(size, 1)],
+            color_attachments=[ctx.renderbuffer(size, 4), ctx.renderbuffer(size, 1),
+                               ctx.renderbuffer(size, 4, dtype='f4')],
             depth_attachment=ctx.depth_renderbuffer(size))
         # The silhouette window may be larger than the image: objects leave the frame.
         self.window_size = (2 * camera.width, 2 * camera.height)
         self.window = ctx.framebuffer(color_attachments=[ctx.renderbuffer(self.window_size, 1)])
         self.rgb = np.empty((camera.height, camera.width, 3), np.uint8)
         self.ids = np.empty((camera.height, camera.width), np.uint8)
+        self.model = np.empty((camera.height, camera.width, 3), np.float32)
         self.window_pixels = np.empty(self.window_size[0] * self.window_size[1], np.uint8)
 
     def release(self):
         """Free the context and everything made in it."""
         self.ctx.release()
 
-    def render_shaded(self, draws, lighting, camera):
-        """Shaded colours (H, W, 3) and instance ids (H, W) of all draws, fresh arrays."""
+    def render_shaded(self, draws, lighting, camera, coordinates):
+        """
+        Draw all draws; return fresh arrays of their colours, ids and coordinates.
+
+        Shaded colours (H, W, 3), instance ids (H, W) and, with ``coordinates``, model
+        coordinates (H, W, 3) float32 (else None).
+        """
         ctx, program = self.ctx, self.shaded
         program['u_projection'].write(_gl_matrix(opengl_projection(camera, self.near,
                                                                    self.far)))
@@ -258,7 +274,12 @@ class _GlState:
             self.vaos[draw.mesh][0].render()
         self.frame.read_into(self.rgb, components=3, attachment=0, alignment=1)
         self.frame.read_into(self.ids, components=1, attachment=1, alignment=1)
-        return self.rgb.copy(), self.ids.copy()
+        model = None
+        if coordinates:
+            self.frame.read_into(self.model, components=3, attachment=2, alignment=1,
+                                 dtype='f4')
+            model = self.model.copy()
+        return self.rgb.copy(), self.ids.copy(), model
 
     def render_silhouette(self, draw, box_uv, camera):
         """

@@ -31,7 +31,9 @@ in vec3 in_color;
 out vec3 v_position;
 out vec3 v_normal;
 out vec3 v_color;
+out vec3 v_model;
 void main() {
+    v_model = in_position;
     v_position = u_rotation * in_position + u_translation;
     v_normal = u_rotation * in_normal;
     v_color = in_color;
@@ -41,7 +43,8 @@ void main() {
 
 # Lambert shading of the interpolated vertex colour; the normal is turned towards the camera
 # so that back faces seen through holes are lit like front faces. Output 1 is the instance
-# id as a normalised 8-bit value (id / 255).
+# id as a normalised 8-bit value (id / 255); output 2 the model coordinates (metres) of the
+# surface point, interpolated perspective-correctly (the dense correspondences' target).
 SHADED_FRAGMENT = """
 #version 330
 uniform vec3 u_light_direction;
@@ -52,8 +55,10 @@ uniform float u_instance_id;
 in vec3 v_position;
 in vec3 v_normal;
 in vec3 v_color;
+in vec3 v_model;
 layout(location = 0) out vec4 f_color;
 layout(location = 1) out float f_id;
+layout(location = 2) out vec4 f_model;
 void main() {
     vec3 normal = normalize(v_normal);
     if (dot(normal, v_position) > 0.0) {
@@ -62,6 +67,7 @@ void main() {
     float shade = u_ambient + u_diffuse * max(dot(normal, u_light_direction), 0.0);
     f_color = vec4(clamp(v_color * u_color_gain * shade, 0.0, 1.0), 1.0);
     f_id = u_instance_id / 255.0;
+    f_model = vec4(v_model, 1.0);
 }
 """
 

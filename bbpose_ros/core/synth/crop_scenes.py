@@ -24,6 +24,10 @@ Neighbouring meshes and occluders are posed in the same camera, the background i
 a full-frame procedural background or photograph at the crop's scale, camera effects are
 applied at the crop's native resolution (a 40-pixel box stays blurry after resizing), and
 parts outside the frame are grey, as ``extract_crops`` fills them.
+
+With ``dense_size`` M > 0 each crop also carries the dense head's targets on an M x M grid
+over the same square (``dense_targets``): the target's normalised model coordinates, its
+visible share (occluders and the frame border hide) and its amodal share per cell.
 """
 
 from collections.abc import Mapping
@@ -36,11 +40,13 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.nets.crops import FILL_VALUE, square_boxes
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
+from bbpose_ros.core.synth.dense_targets import dense_targets
 from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
     random_pixel
@@ -69,6 +75,10 @@ class CropSample:
         input_box_uv: (4,) the jittered box the crop is centred on (a detector's output).
         square_uv: (4,) the square region of the full frame the crop shows.
         visib_fract: visible share of the target's silhouette (outside the frame = hidden).
+        coordinates: (M, M, 3) float32 normalised model coordinates per grid cell, or None
+            without dense targets (see ``dense_targets``).
+        visible_mask: (M, M) float32 visible share of each cell, or None.
+        amodal_mask: (M, M) float32 share of each cell the whole silhouette covers, or None.
 
     """
 
@@ -80,6 +90,9 @@ class CropSample:
     input_box_uv: np.ndarray
     square_uv: np.ndarray
     visib_fract: float
+    coordinates: np.ndarray | None = None
+    visible_mask: np.ndarray | None = None
+    amodal_mask: np.ndarray | None = None
 
 
 class CropScenes:
@@ -99,6 +112,8 @@ class CropScenes:
         min_visib: smallest visible fraction of the target kept.
         neighbours: (low, high) count of meshes placed around the target.
         backgrounds: PhotoBackgrounds, or None for procedural backgrounds only.
+        dense_size: side M of the dense targets' grid (0: none); ``2 crop_size`` (the
+            render size) must be a multiple of it.
 
     """
 
@@ -107,7 +122,7 @@ class CropScenes:
                  distractor_models: Mapping[str, ObjectModel] | None = None,
                  crop_size: int = 64, context: float = 1.2, box_sigma: float = 0.05,
                  min_visib: float = 0.15, neighbours: tuple[int, int] = (0, 4),
-                 backgrounds: PhotoBackgrounds | None = None) -> None:
+                 backgrounds: PhotoBackgrounds | None = None, dense_size: int = 0) -> None:
         if not models:
             raise InputError('crop scenes need at least one target object model')
         if int(seed) != seed or seed < 0:
@@ -118,6 +133,11 @@ class CropScenes:
         self.crop_size, self.context, self.box_sigma = int(crop_size), context, box_sigma
         self.min_visib, self.neighbours = min_visib, neighbours
         self.backgrounds = backgrounds
+        self.dense_size = int(dense_size)
+        if self.dense_size < 0 or (self.dense_size and 2 * self.crop_size % self.dense_size):
+            raise InputError(f'dense_size {dense_size} must divide the render size '
+                             f'{2 * self.crop_size} (twice the crop size)')
+        self.model_boxes = {name: model_box(model.vertices) for name, model in models.items()}
         meshes = {f'target/{name}': RenderMesh.from_object_model(model)
                   for name, model in models.items()}
         meshes.update({f'distractor/{name}': RenderMesh.from_object_model(model)
@@ -171,9 +191,11 @@ class CropScenes:
         lighting = Lighting(tuple(direction / np.linalg.norm(direction)),
                             rng.uniform(*config.ambient_range),
                             rng.uniform(*config.diffuse_range))
-        rendered = self.renderer.render(draws, lighting, (0,), crop_camera)
+        rendered = self.renderer.render(draws, lighting, (0,), crop_camera,
+                                        coordinates=self.dense_size > 0)
         in_frame = self._in_frame_mask(square)
-        visible = np.count_nonzero((rendered.instance_ids == 1) & in_frame)
+        visible_mask = (rendered.instance_ids == 1) & in_frame
+        visible = np.count_nonzero(visible_mask)
         visib = min(visible / max(rendered.full_pixel_counts[0], 1), 1.0)
         if visib < self.min_visib:
             return None
@@ -181,7 +203,12 @@ class CropScenes:
         covered = rendered.instance_ids > 0
         image[covered] = rendered.rgb[covered]
         image = self._as_camera_sees(rng, image, in_frame, square[2] - square[0])
-        return CropSample(image, name, rotation, translation, box, input_box, square, visib)
+        if not self.dense_size:
+            return CropSample(image, name, rotation, translation, box, input_box, square, visib)
+        dense = dense_targets(rendered.model_coordinates, visible_mask, rendered.full_masks[0],
+                              self.dense_size, *self.model_boxes[name])
+        return CropSample(image, name, rotation, translation, box, input_box, square, visib,
+                          *dense)
 
     def _pose(self, rng, key, uv, distance):
         """Egocentric pose of mesh ``key`` seen through pixel ``uv`` at ``distance`` metres."""

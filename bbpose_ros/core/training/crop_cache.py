@@ -20,6 +20,12 @@ index into the cache's objects, ``box_uv`` (n, 4) amodal box and ``input_box_uv`
 jittered box the crop is centred on (full-frame continuous pixels), ``visib`` (n,),
 ``rotation`` (n, 3, 3) egocentric model-to-camera, ``translation`` (n, 3) metres.
 ``meta.json`` records objects, camera, seed, crop size, context and box jitter.
+
+Format version 2 (``meta.json`` ``format_version`` 2, ``dense_size`` M) adds the dense
+head's targets (``core.synth.dense_targets``) on an M x M grid over each crop:
+``coordinates`` (n, M, M, 3) float16 model coordinates normalised by the model box,
+``visible_mask`` and ``amodal_mask`` (n, M, M) uint8 cell shares times 255. A cache without
+``format_version`` is version 1 (crops only) and reads as before; it has ``dense_size`` 0.
 """
 
 from __future__ import annotations
@@ -43,6 +49,8 @@ if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropSample, CropScenes
 
 SHARD_SIZE = 2000
+# The cache format with dense targets; caches without them keep version 1's meta.json.
+DENSE_FORMAT_VERSION = 2
 
 _WORKER = {}
 
@@ -67,6 +75,11 @@ def write_crop_shard(names: Sequence[str], path: Path,
         'rotation': np.stack([s.rotation for s in samples]).astype(np.float32),
         'translation': np.stack([s.translation for s in samples]).astype(np.float32),
     }
+    if samples[0].coordinates is not None:
+        arrays['coordinates'] = np.stack([s.coordinates for s in samples]).astype(np.float16)
+        for key in ('visible_mask', 'amodal_mask'):
+            arrays[key] = np.round(np.stack([getattr(s, key) for s in samples]) * 255
+                                   ).astype(np.uint8)
     with atomic_output(path) as tmp, open(tmp, 'wb') as stream:
         np.savez(stream, **arrays)
 
@@ -94,6 +107,8 @@ def build_crop_cache(scenes: CropScenes, cache_dir: Path | str, count: int, work
             'shard_size': shard_size,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
+    if scenes.dense_size:
+        meta.update(format_version=DENSE_FORMAT_VERSION, dense_size=scenes.dense_size)
     render_shards(cache_dir, meta, whole_shards(count, shard_size), shard_size, _init_worker,
                   (scenes,), _render,
                   partial(write_crop_shard, scenes.target_names), 'crop', workers, progress)
@@ -107,6 +122,11 @@ def _read_meta(cache_dir):
     meta = json.loads(meta_path.read_text())
     if meta.get('kind') != 'qnet_crops':
         raise InputError(f'{meta_path} is not a Q-Net crop cache (field "kind")')
+    version = meta.setdefault('format_version', 1)
+    if version not in (1, DENSE_FORMAT_VERSION):
+        raise InputError(f'{meta_path}: field "format_version" is {version!r}, expected 1 or '
+                         f'{DENSE_FORMAT_VERSION}')
+    meta.setdefault('dense_size', 0)
     return meta
 
 
@@ -128,12 +148,13 @@ class CropCache:
         objects: object names (index = ``object`` values).
         camera: CameraIntrinsics of the full frames the crops were cut from.
         crop_size: side of the stored crops; context: crop side / longest input-box side.
+        dense_size: side of the dense targets' grid (0: the cache has none).
         folder: (m,) index of the folder each crop comes from.
         Per-crop arrays as in the module docstring.
 
     """
 
-    SHARED_META = ('objects', 'camera', 'crop_size', 'context')
+    SHARED_META = ('objects', 'camera', 'crop_size', 'context', 'dense_size')
 
     def __init__(self, cache_dirs: Path | str | Sequence[Path | str],
                  max_shards: int | None = None) -> None:
@@ -149,6 +170,7 @@ class CropCache:
         self.camera = CameraIntrinsics(*meta['camera'][:4], *map(int, meta['camera'][4:]))
         self.crop_size = int(meta['crop_size'])
         self.context = float(meta['context'])
+        self.dense_size = int(meta['dense_size'])
         parts, folders = [], []
         for k, folder in enumerate(dirs):
             paths = sorted(folder.glob('shard_[0-9][0-9][0-9][0-9][0-9].npz'))[:max_shards]

@@ -13,10 +13,10 @@
 # limitations under the License.
 
 """
-Training runs of Q-Net and the detector: build, train, checkpoint, export weight files.
+Training runs of Q-Net, the detector and the dense net: build, train, checkpoint, export.
 
 Each run folder gets ``checkpoint.pt`` (resumable), ``log.csv``, ``train.log``, ``loss.png``
-and the exported weight file (``qnet.pt`` / ``detector.pt``, with metadata, see
+and the exported weight file (``qnet.pt`` / ``detector.pt`` / ``dense.pt``, with metadata, see
 ``core.pipeline.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere
 too. The detector's second stage trains in a run of its own and is exported with its first
 stage in one ``detector.pt``.
@@ -35,10 +35,14 @@ from typing import TYPE_CHECKING
 import torch
 
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0, load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.weights import save_weights
+from bbpose_ros.core.training.dense_training import (dense_step, dense_validation,
+                                                     DenseBatches, DenseTrainSettings,
+                                                     freeze_early_blocks)
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
                                                         DetectorBatches, DetectorTrainSettings)
 from bbpose_ros.core.training.device import TrainingDevice
@@ -53,7 +57,8 @@ if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache
-    from bbpose_ros.core.training.real_validation import RealCrops, RealDetections
+    from bbpose_ros.core.training.real_validation import RealCrops, RealDenseCrops, \
+        RealDetections
 
 
 def git_commit() -> str:
@@ -144,6 +149,47 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
                                  validation),
              every=every, on_checkpoint=_exporter(run_dir, network, 'qnet', training, export,
                                                   validation),
+             progress=progress, device=device)
+    return network
+
+
+def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: DenseConfig,
+                settings: DenseTrainSettings, run_dir: Path | str, steps: int,
+                seconds: float | None = None, seed: int = 0, threads: int | None = None,
+                export: Path | str | None = None, every: int = 500, progress: bool = True,
+                real_crops: RealDenseCrops | None = None,
+                device: str | torch.device = 'cpu') -> DenseNet:
+    """
+    Train (or resume) a dense net on a CropCache with dense targets; returns the network.
+
+    As ``train_qnet``: the weight file is ``run_dir/dense.pt`` (and ``export``);
+    ``real_crops`` (a ``RealDenseCrops``) adds real-frame figures to every validation.
+    """
+    device = _prepare(run_dir, seed, threads, device)
+    network = DenseNet(config)
+    load_imagenet_trunks(network)
+    freeze_early_blocks(network, settings.frozen_blocks)
+    network = network.to(device.device, memory_format=torch.channels_last)
+    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
+                                  settings.lr, weight_decay=settings.weight_decay)
+    batches = DenseBatches(cache, config, models, settings, seed)
+    validation = {}
+    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
+                'settings': asdict(settings), 'total_steps': steps,
+                'device': device.device.type,
+                'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
+
+    def figures():
+        values = dense_validation(network, batches, device)
+        if real_crops is not None:
+            values.update(real_crops.figures(network.cpu()))
+            network.to(device.device)
+        return values
+
+    run_loop(run_dir, network, optimizer,
+             lambda step: dense_step(network, optimizer, batches, device), steps, seconds,
+             settings.lr, validate=_validated(figures, validation), every=every,
+             on_checkpoint=_exporter(run_dir, network, 'dense', training, export, validation),
              progress=progress, device=device)
     return network
 

@@ -1,0 +1,115 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The dense correspondence stage: a frame's detections -> dense maps -> PnP poses.
+
+All crops of a frame go through the dense net (``nets.dense``) in one batch; each crop is
+cut as Q-Net's (square, the net's ``context``, around the detection's amodal box), and
+its maps give a pose by PnP with RANSAC (``geometry.dense_pnp``).
+"""
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from bbpose_ros.core.data.models import ObjectModel
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.dense_grid import model_box
+from bbpose_ros.core.geometry.dense_pnp import DensePose, pose_from_dense_maps
+from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
+from bbpose_ros.core.nets.dense import DenseNet
+from bbpose_ros.core.pipeline.backends import make_runner
+from bbpose_ros.core.pipeline.poses import Detection
+
+
+@dataclass(frozen=True)
+class DenseMaps:
+    """
+    The dense net's output for a frame's detections (N crops, M x M maps).
+
+    Attributes:
+        coordinates: (N, M, M, 3) normalised model coordinates (``geometry.dense_grid``).
+        visible: (N, M, M) visible-mask probability.
+        amodal: (N, M, M) amodal-mask probability.
+        squares_uv: (N, 4) the crops' squares, full-frame continuous pixels.
+
+    """
+
+    coordinates: np.ndarray
+    visible: np.ndarray
+    amodal: np.ndarray
+    squares_uv: np.ndarray
+
+
+class DenseCorrespondenceEstimator:
+    """
+    ``(image_rgb, camera, detections) -> (DenseMaps, [DensePose | None])``.
+
+    Args:
+        network: a DenseNet (a copy is prepared for inference by ``make_runner``).
+        models: {name: ObjectModel} of its objects (for the model boxes).
+        backend, device, threads: see ``backends.make_runner``.
+
+    """
+
+    def __init__(self, network: DenseNet, models: Mapping[str, ObjectModel],
+                 backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
+                 threads: int | None = None) -> None:
+        self.config = network.config
+        missing = [name for name in self.config.objects if name not in models]
+        if missing:
+            raise InputError(f'no model of {", ".join(missing)} for the dense net')
+        self.index = {name: k for k, name in enumerate(self.config.objects)}
+        self.boxes = {name: model_box(models[name].vertices) for name in self.config.objects}
+        self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
+                                   dynamic_batch=True)
+
+    def maps(self, image_rgb: np.ndarray, detections: Sequence[Detection]) -> DenseMaps:
+        """Compute the dense maps of each detection's crop (one batch)."""
+        size = self.config.map_size
+        if not detections:
+            return DenseMaps(np.zeros((0, size, size, 3)), np.zeros((0, size, size)),
+                             np.zeros((0, size, size)), np.zeros((0, 4)))
+        squares = square_boxes(np.array([d.box_uv for d in detections], dtype=float),
+                               self.config.context)
+        crops = extract_crops(image_rgb, squares, self.config.crop_size)
+        index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
+        maps = self.network(crops, index).float()
+        return DenseMaps(maps[:, :3].permute(0, 2, 3, 1).numpy(),
+                         torch.sigmoid(maps[:, 3]).numpy(), torch.sigmoid(maps[:, 4]).numpy(),
+                         squares)
+
+    def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                 detections: Sequence[Detection]) -> tuple[DenseMaps, list[DensePose | None]]:
+        """Return the maps and one PnP pose per detection (None: too few masked cells)."""
+        maps = self.maps(image_rgb, detections)
+        poses = [pose_from_dense_maps(maps.coordinates[k], maps.visible[k],
+                                      maps.squares_uv[k], camera,
+                                      *self.boxes[detection.object_name])
+                 for k, detection in enumerate(detections)]
+        return maps, poses
+
+    def _blank_batch(self, count):
+        size = self.config.crop_size
+        crops = np.full((count, size, size, 3), FILL_VALUE, dtype=np.uint8)
+        return crops, np.zeros(count, dtype=np.int64)
+
+    def warm_up(self, max_batch: int) -> None:
+        """Run every batch size 1..max_batch once on blank crops (as Q-Net's stage does)."""
+        for count in range(1, max_batch + 1):
+            self.network(*self._blank_batch(count))
