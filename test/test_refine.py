@@ -22,7 +22,9 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.dense_pnp import DensePose
 from bbpose_ros.core.geometry.rotations import exp_so3, perturb_pose, rotation_error_deg
+from bbpose_ros.core.pipeline.correspondences import DenseMaps
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
@@ -345,3 +347,53 @@ def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, l
                             candidates=2)
     assert pipeline.estimate(frame.load_image(), frame.camera).poses == []
     assert PoseRefiner(models)(frame.load_image(), frame.camera, []) == []
+
+
+class TruthCorrespondences:
+    """A dense stage that knows the truth: PnP poses and amodal masks of the instances."""
+
+    def __init__(self, frame, models):
+        self.frame, self.models = frame, models
+
+    def __call__(self, image_rgb, camera, detections):
+        truths = {i.object_name: i for i in self.frame.instances}
+        poses, masks = [], []
+        for detection in detections:
+            truth = truths[detection.object_name]
+            model = self.models[detection.object_name]
+            poses.append(DensePose(truth.rotation, truth.translation, 100, 100))
+            masks.append(mask_over_box(render_silhouette(
+                camera, model.vertices, model.faces, truth.rotation, truth.translation)))
+        probabilities = np.concatenate([m.probabilities for m in masks])
+        squares = np.concatenate([m.squares_uv for m in masks])
+        maps = DenseMaps(np.zeros(probabilities.shape + (3,)), probabilities, probabilities,
+                         squares)
+        return maps, poses
+
+
+def test_pnp_poses_are_candidates_and_say_so(viewpoint_models, lmo_models, lmo_frames):
+    models, _ = viewpoint_models
+    frame = next(f for f in lmo_frames if {'ape', 'duck'} <= {i.object_name
+                                                              for i in f.instances})
+    objects = {n: lmo_models[n] for n in ('ape', 'duck')}
+    detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances
+                  if i.object_name in objects]
+    oracle = TruthCorrespondences(frame, objects)
+    plain = PosePipeline(objects, correspondences=oracle)
+    result = plain.estimate(frame.load_image(), frame.camera, detections)
+    assert [p.source for p in result.poses] == ['pnp'] * len(detections)
+    assert 'correspondences' in result.timings_ms
+    truths = {i.object_name: i for i in frame.instances}
+    for pose in result.poses:
+        np.testing.assert_array_equal(pose.translation, truths[pose.object_name].translation)
+    # Refined with the masks of the truth, right poses stay right (5 cm / 5 deg; a
+    # silhouette holds out-of-plane rotation loosely); the equation's translation from PnP's
+    # rotation is a second candidate.
+    refined = PosePipeline(objects, refiner=PoseRefiner({n: models[n] for n in objects}),
+                           correspondences=oracle, dense_translation='both').estimate(
+        frame.load_image(), frame.camera, detections)
+    assert {p.source for p in refined.poses} <= {'pnp', 'pnp_rotation'}
+    for pose in refined.poses:
+        truth = truths[pose.object_name]
+        assert rotation_error_deg(pose.rotation, truth.rotation) < 5.0
+        assert np.linalg.norm(pose.translation - truth.translation) < 0.05

@@ -24,7 +24,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.pipeline.options import (DENSE_MASKS, DENSE_TRANSLATIONS, PipelineOptions,
+                                              POSE_SOURCES)
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
 
@@ -86,6 +87,19 @@ def add_pipeline_arguments(parser):
     parser.add_argument('--refine-hypotheses', type=int, default=defaults.refine_hypotheses,
                         help="refine each detection's K best-ranked rotation hypotheses and "
                              'keep the best-scored (default %(default)s)')
+    parser.add_argument('--pose-source', choices=POSE_SOURCES, default=defaults.pose_source,
+                        help='candidate poses from Q-Net + the Bounding Box Equation (qnet, '
+                             'the paper), PnP over the dense correspondences (dense), or both '
+                             '(default %(default)s)')
+    parser.add_argument('--dense-translation', choices=DENSE_TRANSLATIONS,
+                        default=defaults.dense_translation,
+                        help="dense poses' translation: PnP's, the Bounding Box Equation's "
+                             "from PnP's rotation, or both candidates (default %(default)s)")
+    parser.add_argument('--dense-mask', choices=DENSE_MASKS, default=defaults.dense_mask,
+                        help="the refiner's foreground model: the dense net's amodal or "
+                             'visible mask, or none (colours) (default %(default)s)')
+    parser.add_argument('--dense-weights', type=Path, default=None,
+                        help='dense net weight file (default: the shipped one)')
 
 
 def pipeline_options(args):
@@ -93,7 +107,10 @@ def pipeline_options(args):
     try:
         return PipelineOptions(box_consistency_weight=args.box_consistency_weight,
                                refine=args.refine, refine_min_score=args.refine_min_score,
-                               refine_hypotheses=args.refine_hypotheses)
+                               refine_hypotheses=args.refine_hypotheses,
+                               pose_source=args.pose_source,
+                               dense_translation=args.dense_translation,
+                               dense_mask=args.dense_mask)
     except InputError as err:
         option, _, reason = str(err).partition(': ')
         raise InputError(f'--{option.replace("_", "-")}: {reason}') from err
@@ -109,7 +126,8 @@ def build_pipeline(models, args):
             refiner = load_pose_refiner(models, min_score=options.refine_min_score)
         return PosePipeline(models, refiner=refiner)
     from bbpose_ros.core.pipeline.loader import load_pipeline
-    return load_pipeline(models, options, args.detector_weights, args.qnet_weights)
+    return load_pipeline(models, options, args.detector_weights, args.qnet_weights,
+                         dense_weights=args.dense_weights)
 
 
 class RecordingDetector:
@@ -174,6 +192,10 @@ def run(args):
                         'box_consistency_weight': args.box_consistency_weight,
                         'refine': args.refine, 'refine_min_score': args.refine_min_score,
                         'refine_hypotheses': args.refine_hypotheses,
+                        'pose_source': args.pose_source,
+                        'dense_translation': args.dense_translation,
+                        'dense_mask': args.dense_mask,
+                        'dense_weights': _weights_name(args.dense_weights),
                         'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
     for level in report.get('sweep', []):

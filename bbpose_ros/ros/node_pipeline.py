@@ -63,10 +63,11 @@ def build_node_pipeline(config: NodeConfig,
                          f'{config.dataset_dir}: {err}') from err
     try:
         pipeline = load_pipeline(models, config.options, config.detector_weights,
-                                 config.qnet_weights, refiner_log=log)
+                                 config.qnet_weights, refiner_log=log,
+                                 dense_weights=config.dense_weights)
     except InputError as err:
-        raise InputError(f'parameters detector_weights / qnet_weights (empty: the shipped '
-                         f'files): {err}') from err
+        raise InputError(f'parameters detector_weights / qnet_weights / dense_weights (empty: '
+                         f'the shipped files): {err}') from err
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)

@@ -155,6 +155,9 @@ PARAMETERS = {
     'qnet_weights': ParameterSpec(
         '', 'Q-Net rotation weights file (.pt); empty: the weights shipped in '
         'bbpose_ros/weights.', 'configure', check=_check_weights_file),
+    'dense_weights': ParameterSpec(
+        '', 'Dense correspondence net weights file (.pt), read when pose_source or dense_mask '
+        'uses it; empty: bbpose_ros/weights/dense.pt.', 'configure', check=_check_weights_file),
     'score_threshold': option_spec(
         'score_threshold', 'Detections scoring below this (0..1) are ignored.'),
     'max_instances': option_spec(
@@ -172,6 +175,16 @@ PARAMETERS = {
     'refine_min_score': option_spec(
         'refine_min_score', 'Refined poses scoring below this (0..1: share of contour lines '
         'that agree with the image) are dropped; 0 keeps all.'),
+    'pose_source': option_spec(
+        'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
+        'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '
+        'dense+qnet.'),
+    'dense_translation': option_spec(
+        'dense_translation', "With the dense net: the PnP pose's translation (pnp), the "
+        "Bounding Box Equation's from PnP's rotation (bbox_equation), or both candidates."),
+    'dense_mask': option_spec(
+        'dense_mask', "With refine: the refiner's foreground model, the dense net's predicted "
+        'amodal or visible mask, or none (the colours).'),
     'tracking': ParameterSpec(
         False, 'Start each refined object from its pose in the previous frame and run the '
         'detector and Q-Net only when needed (needs refine).', 'pipeline'),
@@ -229,7 +242,8 @@ class NodeConfig:
     Attributes:
         values: {name: value} of every parameter of PARAMETERS.
         dataset_dir: the dataset folder ``dataset_dir`` resolves to.
-        detector_weights, qnet_weights: the weight files; None where the shipped one applies.
+        detector_weights, qnet_weights, dense_weights: the weight files; None where the
+            shipped one applies.
         qos: the input subscriptions' QoS (``qos_reliability``, ``qos_depth``).
         options: the PipelineOptions of the parameters that set one of its fields.
 
@@ -239,6 +253,7 @@ class NodeConfig:
     dataset_dir: Path
     detector_weights: Path | None
     qnet_weights: Path | None
+    dense_weights: Path | None
     qos: QoSProfile
     options: PipelineOptions
 
@@ -332,6 +347,7 @@ def read_config(values: dict[str, Any]) -> NodeConfig:
         detector_weights=Path(values['detector_weights']) if values['detector_weights']
         else None,
         qnet_weights=Path(values['qnet_weights']) if values['qnet_weights'] else None,
+        dense_weights=Path(values['dense_weights']) if values['dense_weights'] else None,
         qos=QoSProfile(depth=values['qos_depth'],
                        reliability=RELIABILITY[values['qos_reliability']]),
         options=options)

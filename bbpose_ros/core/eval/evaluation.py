@@ -64,7 +64,8 @@ class InstanceScore:
     Errors of one counted ground-truth instance (NaN where missed), and how visible it is.
 
     ``confidence`` is the pose's (``PoseEstimate.confidence``: the refinement score when
-    refined, else the detection score), NaN where missed.
+    refined, else the detection score), NaN where missed; ``source`` where the pose came
+    from (``PoseEstimate.source``), None where missed.
     """
 
     object_name: str
@@ -78,6 +79,7 @@ class InstanceScore:
     euler_deg: float
     visib_fract: float
     confidence: float
+    source: str | None = None
 
 
 def match_by_score(boxes_det: npt.ArrayLike, scores: npt.ArrayLike, boxes_gt: npt.ArrayLike,
@@ -120,7 +122,7 @@ def score_instance(model: ObjectModel, instance: GroundTruthInstance, pose: Pose
         model.name, True, inside, distance(*args, model.eval_points), threshold, re_deg, te_m,
         metrics.proj(*args, camera.k, model.eval_points),
         float(euler_error_deg(pose.rotation, instance.rotation)[0]), instance.visib_fract,
-        float(pose.confidence))
+        float(pose.confidence), pose.source)
 
 
 def summarize(scores: Sequence[InstanceScore]) -> dict[str, float]:
@@ -215,11 +217,32 @@ def make_report(scores: Mapping[str, Sequence[InstanceScore]],
 
     Returns:
         {'objects': {name: POSE_KEYS}, 'mean': {...}, 'confidence': ``confidence_sweep``,
-        'timing_ms': {...}, 'frames': count}.
+        'sources': ``source_summary``, 'timing_ms': {...}, 'frames': count}.
 
     """
     return dict(summarize_objects(scores), confidence=confidence_sweep(scores),
-                timing_ms=timing_summary(timings), frames=frame_count)
+                sources=source_summary(scores), timing_ms=timing_summary(timings),
+                frames=frame_count)
+
+
+def source_summary(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, Any]:
+    """
+    Where the poses that found an instance came from, pooled over the objects.
+
+    Returns:
+        {source: {'n': instances found from it, 'add_s_recall', 'cm5deg5': their share
+        right}} (``PoseEstimate.source``), most frequent first.
+
+    """
+    pooled = [s for object_scores in scores.values() for s in object_scores if s.detected]
+    summary = {}
+    for source in sorted({s.source for s in pooled}, key=lambda x: -sum(
+            s.source == x for s in pooled)):
+        chosen = [s for s in pooled if s.source == source]
+        add_ok, cm_deg = _passes(chosen)
+        summary[source] = {'n': len(chosen), 'add_s_recall': float(np.mean(add_ok)),
+                           'cm5deg5': float(np.mean(cm_deg))}
+    return summary
 
 
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
@@ -373,6 +396,10 @@ def format_report(report: Mapping[str, Any]) -> str:
                        for stage, t in report.get('timing_ms', {}).items())
     if timing:
         lines.append(f'timing per frame: {timing}')
+    if report.get('sources'):
+        lines.append('poses found from: ' + '; '.join(
+            f'{source} {row["n"]} (ADD(-S) {row["add_s_recall"]:.3f}, 5cm5deg '
+            f'{row["cm5deg5"]:.3f})' for source, row in report['sources'].items()))
     if report.get('confidence'):
         lines.append('minimum confidence: share of found poses kept, and of those kept the '
                      'share passing ADD(-S) / 5cm5deg')

@@ -30,13 +30,14 @@ from typing import TYPE_CHECKING
 import torch
 
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
+from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
 from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
-from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
-                                              load_network)
+from bbpose_ros.core.pipeline.weights import (DEFAULT_DENSE_WEIGHTS, DEFAULT_DETECTOR_WEIGHTS,
+                                              DEFAULT_QNET_WEIGHTS, load_network)
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -49,7 +50,8 @@ def load_pipeline(models: Mapping[str, ObjectModel],
                   options: PipelineOptions | None = None,
                   detector_weights: Path | str | None = None,
                   qnet_weights: Path | str | None = None,
-                  refiner_log: Callable[[str], None] | None = None) -> PosePipeline:
+                  refiner_log: Callable[[str], None] | None = None,
+                  dense_weights: Path | str | None = None) -> PosePipeline:
     """
     Build a PosePipeline with the learned detector and Q-Net, warmed up.
 
@@ -60,6 +62,8 @@ def load_pipeline(models: Mapping[str, ObjectModel],
         qnet_weights: Q-Net file (default: the shipped ``weights/qnet.pt``).
         refiner_log: gets a line for each viewpoint model the refiner builds (once per
             mesh, then cached).
+        dense_weights: dense net file, read when the options use it (``runs_dense``;
+            default: the shipped ``weights/dense.pt``).
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file.
@@ -75,16 +79,27 @@ def load_pipeline(models: Mapping[str, ObjectModel],
         load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
         options.score_threshold, options.max_instances, options.backend, options.device,
         threads)
-    qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
-    # Every hypothesis is needed when they are ranked by the box or several are refined.
-    ranked = selector.weight > 0 or options.candidates_per_detection > 1
-    rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
-                                     all_hypotheses=qnet.config.hypotheses > 1 and ranked)
+    batch = min(len(names) * options.max_instances, MAX_WARM_UP_BATCH)
+    rotation = correspondences = None
+    if options.uses_qnet:
+        qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
+        # Every hypothesis is needed when they are ranked by the box or several are refined.
+        ranked = selector.weight > 0 or options.candidates_per_detection > 1
+        rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
+                                         all_hypotheses=qnet.config.hypotheses > 1 and ranked)
+        rotation.warm_up(batch)
+    if options.runs_dense:
+        dense = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', names)
+        correspondences = DenseCorrespondenceEstimator(dense, models, options.backend,
+                                                       options.device, threads)
+        correspondences.warm_up(batch)
     detector.warm_up()
-    rotation.warm_up(min(len(names) * options.max_instances, MAX_WARM_UP_BATCH))
     refiner = None
     if options.refine:
         refiner = load_pose_refiner(models, min_score=options.refine_min_score,
                                     progress=False, log=refiner_log)
     return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
-                        refiner=refiner, candidates=options.candidates_per_detection)
+                        refiner=refiner, candidates=options.candidates_per_detection,
+                        correspondences=correspondences, dense_poses=options.uses_dense,
+                        dense_translation=options.dense_translation,
+                        dense_mask=options.dense_mask)

@@ -32,6 +32,11 @@ from bbpose_ros.core.pipeline.backends import BACKENDS
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 
 
+POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')
+DENSE_TRANSLATIONS = ('pnp', 'bbox_equation', 'both')
+DENSE_MASKS = ('amodal', 'visible', 'none')
+
+
 def _option(default: Any, low: float | None = None, high: float | None = None,
             choices: tuple[str, ...] | None = None) -> Any:
     """Make a dataclass field with its inclusive range or its choices as metadata."""
@@ -55,6 +60,16 @@ class PipelineOptions:
             rotation hypotheses are solved and refined (the best-scored is kept); each costs
             the screening iterations (accuracy by their number: docs/refinement.md).
         refine_min_score: with refinement, poses scored below this (0..1) are dropped.
+        pose_source: where each detection's candidate poses come from: 'qnet' (Q-Net's
+            hypotheses + the Bounding Box Equation, the paper's path), 'dense' (PnP over
+            the dense net's correspondences, with PnP's or the equation's translation per
+            ``dense_translation``), 'dense+qnet' (both; the refiner, or else the PnP pose
+            when found, picks).
+        dense_translation: 'pnp' or 'bbox_equation' (PnP's rotation, the equation's
+            translation from the detector's box) or 'both' (two candidates).
+        dense_mask: the predicted mask the refiner's region modality takes as the object's
+            foreground: 'amodal', 'visible' or 'none' (the colours alone). The dense net
+            runs when its poses are candidates or its mask is used.
         backend: what runs the networks, one of ``backends.BACKENDS``.
         device: torch device, 'cpu', 'cuda' or 'cuda:N' (onnxruntime runs on the CPU only).
         threads: intra-op threads of the backend; 0: its default (one per core).
@@ -71,6 +86,9 @@ class PipelineOptions:
     refine: bool = _option(True)
     refine_hypotheses: int = _option(3, 1, 8)
     refine_min_score: float = _option(0.0, 0.0, 1.0)
+    pose_source: str = _option('qnet', choices=POSE_SOURCES)
+    dense_translation: str = _option('pnp', choices=DENSE_TRANSLATIONS)
+    dense_mask: str = _option('none', choices=DENSE_MASKS)
     backend: str = _option('onnxruntime', choices=BACKENDS)
     device: str = _option('cpu')
     threads: int = _option(0, 0, 256)
@@ -81,6 +99,21 @@ class PipelineOptions:
         if self.backend != 'torch' and self.device != 'cpu':
             raise InputError(f'backend / device: {self.backend} runs on the CPU only; use '
                              f'the torch backend for device {self.device}')
+
+    @property
+    def uses_qnet(self) -> bool:
+        """Tell whether Q-Net's hypotheses are candidates."""
+        return self.pose_source in ('qnet', 'dense+qnet')
+
+    @property
+    def uses_dense(self) -> bool:
+        """Tell whether the dense net's PnP poses are candidates."""
+        return self.pose_source in ('dense', 'dense+qnet')
+
+    @property
+    def runs_dense(self) -> bool:
+        """Tell whether the dense net runs: for its PnP poses or its masks."""
+        return self.uses_dense or (self.refine and self.dense_mask != 'none')
 
     @property
     def candidates_per_detection(self) -> int:

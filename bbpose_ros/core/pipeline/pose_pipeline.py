@@ -23,6 +23,9 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
   (``poses.RotationHypotheses``), which ``hypotheses.HypothesisSelector`` ranks by how
   well each explains the box;
 * the Bounding Box Equation for the translations (``bbox_equation``);
+* optionally the dense correspondences (``correspondences``): a pose per detection by PnP
+  over the predicted surface coordinates, as a further candidate, and predicted masks
+  for the refiner;
 * optionally a refiner (``refinement.PoseRefiner``) that aligns each pose, or the few
   best hypotheses of each detection, with the image and keeps the best-scored one.
 
@@ -44,9 +47,11 @@ from bbpose_ros.core.latency import StageTimer
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
 from bbpose_ros.core.pipeline.poses import (Detection, FrameResult, PoseEstimate,
                                             RotationHypotheses)
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
     from bbpose_ros.core.pipeline.refinement import PoseRefiner
 
 
@@ -69,6 +74,12 @@ class PosePipeline:
         candidates: with RotationHypotheses, how many of each detection's best-ranked
             hypotheses are solved (and refined: the best-scored is kept); without a refiner
             only the first is reported (``PipelineOptions.candidates_per_detection``).
+        correspondences: a ``correspondences.DenseCorrespondenceEstimator``, or None (Q-Net's
+            path alone): its masks guide the refiner, and with ``dense_poses`` its PnP poses
+            are candidates too (placed first: unrefined, a found PnP pose is reported).
+        dense_poses: whether the dense stage's PnP poses are candidates.
+        dense_translation: 'pnp', 'bbox_equation' or 'both' (``PipelineOptions``).
+        dense_mask: 'amodal', 'visible' or 'none': the refiner's mask (``PipelineOptions``).
 
     """
 
@@ -79,7 +90,10 @@ class PosePipeline:
                      np.ndarray | RotationHypotheses] | None = None,
                  selection: str = 'tangent_planes', max_iterations: int = 10,
                  hypothesis_selector: HypothesisSelector | None = None,
-                 refiner: PoseRefiner | None = None, candidates: int = 1) -> None:
+                 refiner: PoseRefiner | None = None, candidates: int = 1,
+                 correspondences: DenseCorrespondenceEstimator | None = None,
+                 dense_poses: bool = True, dense_translation: str = 'pnp',
+                 dense_mask: str = 'amodal') -> None:
         self.models = dict(models)
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
@@ -90,6 +104,10 @@ class PosePipeline:
         self.hypothesis_selector = hypothesis_selector
         self.refiner = refiner
         self.candidates = int(candidates) if refiner is not None else 1
+        self.correspondences = correspondences
+        self.dense_poses = dense_poses
+        self.dense_translation = dense_translation
+        self.dense_mask = dense_mask
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Iterable[Detection] | None = None,
@@ -115,32 +133,60 @@ class PosePipeline:
             detections = self.detector(image_rgb)
             timer.lap('detector')
         detections = [d for d in detections if d.object_name in self.models]
-        if rotations is None and detections:
-            if self.rotation_estimator is None:
-                raise InputError('the pipeline has no rotation estimator and no rotations '
-                                 'were given')
+        dense = None
+        if detections and self.correspondences is not None and rotations is None:
+            dense = self.correspondences(image_rgb, camera, detections)
+            timer.lap('correspondences')
+        source = 'given' if rotations is not None else 'qnet'
+        if detections and rotations is None and self.rotation_estimator is not None:
             rotations = self.rotation_estimator(image_rgb, camera, detections)
             timer.lap('rotation')
-        candidates = 1
-        if isinstance(rotations, RotationHypotheses):
-            if self.hypothesis_selector is None:
-                self.hypothesis_selector = HypothesisSelector(self.models)
-            rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
-                                                        self.candidates)
-            candidates = rotations.shape[1]
-            timer.lap('hypothesis_selection')
-        poses = [] if not detections else self.translations(
-            camera, [d for d in detections for _ in range(candidates)],
-            np.reshape(rotations, (-1, 3, 3)))
+        if detections and rotations is None and not (dense is not None and self.dense_poses):
+            raise InputError('the pipeline has no rotation estimator and no rotations were '
+                             'given')
+        groups = [[] for _ in detections]
+        if dense is not None and self.dense_poses:
+            for k, pose in self._dense_candidates(camera, detections, dense[1]):
+                groups[k].append(pose)
+        if rotations is not None and detections:
+            count = 1
+            if isinstance(rotations, RotationHypotheses):
+                if self.hypothesis_selector is None:
+                    self.hypothesis_selector = HypothesisSelector(self.models)
+                rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
+                                                            self.candidates)
+                count = rotations.shape[1]
+                timer.lap('hypothesis_selection')
+            solved = self.translations(camera, [d for d in detections for _ in range(count)],
+                                       np.reshape(rotations, (-1, 3, 3)), source)
+            for k, pose in enumerate(solved):
+                groups[k // count].append(pose)
         timer.lap('translation')
-        if self.refiner is not None and poses:
-            poses = self.refiner.best_of(image_rgb, camera, [
-                poses[k:k + candidates] for k in range(0, len(poses), candidates)])
-            timer.lap('refinement')
+        found = [k for k, group in enumerate(groups) if group]
+        if self.refiner is None or not found:
+            return FrameResult([groups[k][0] for k in found], timer.total())
+        masks = None
+        if dense is not None and self.dense_mask != 'none':
+            maps = dense[0]
+            masks = ForegroundMasks(maps.amodal if self.dense_mask == 'amodal' else maps.visible,
+                                    maps.squares_uv, np.ones(len(detections), bool)).take(found)
+        poses = self.refiner.best_of(image_rgb, camera, [groups[k] for k in found], masks)
+        timer.lap('refinement')
         return FrameResult(poses, timer.total())
 
+    def _dense_candidates(self, camera, detections, dense_poses):
+        """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""
+        found = [(k, p) for k, p in enumerate(dense_poses) if p is not None]
+        if self.dense_translation in ('pnp', 'both'):
+            yield from ((k, PoseEstimate(detections[k], p.rotation, p.translation,
+                                         source='pnp')) for k, p in found)
+        if self.dense_translation in ('bbox_equation', 'both') and found:
+            solved = self.translations(camera, [detections[k] for k, _ in found],
+                                       [p.rotation for _, p in found], 'pnp_rotation')
+            yield from zip([k for k, _ in found], solved)
+
     def translations(self, camera: CameraIntrinsics, detections: Sequence[Detection],
-                     rotations: npt.ArrayLike) -> list[PoseEstimate]:
+                     rotations: npt.ArrayLike, source: str = 'qnet') -> list[PoseEstimate]:
         """Solve the Bounding Box Equation for all detections of a frame in one batch."""
         if not detections:
             return []
@@ -153,5 +199,5 @@ class PosePipeline:
                                       camera.cx, camera.cy,
                                       selection=self.selection,
                                       max_iterations=self.max_iterations)
-        return [PoseEstimate(d, r, t)
+        return [PoseEstimate(d, r, t, source=source)
                 for d, r, t in zip(detections, rotations, solution.translations)]

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SOURCES = ('qnet', 'pnp', 'pnp_rotation', 'given')
+
 
 @dataclass(frozen=True)
 class Detection:
@@ -70,6 +72,11 @@ class PoseEstimate:
         translation: (3,) metres, camera optical frame.
         refinement_score: when refined, the share of contour lines that agree with the
             image (0..1, ``refine.region_modality``); None when not refined.
+        source: where the pose started, one of SOURCES: 'qnet' (a Q-Net rotation and the
+            Bounding Box Equation, the paper's path), 'pnp' (PnP over the dense
+            correspondences, rotation and translation), 'pnp_rotation' (PnP's rotation and
+            the Bounding Box Equation's translation), 'given' (rotations handed in: ground
+            truth, a track).
 
     """
 
@@ -77,6 +84,7 @@ class PoseEstimate:
     rotation: np.ndarray
     translation: np.ndarray
     refinement_score: float | None = None
+    source: str = 'qnet'
 
     @property
     def object_name(self) -> str:

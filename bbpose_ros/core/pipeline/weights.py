@@ -49,6 +49,7 @@ FORMAT_VERSION = 1
 WEIGHTS_DIR = Path(__file__).resolve().parents[2] / 'weights'
 DEFAULT_DETECTOR_WEIGHTS = WEIGHTS_DIR / 'detector.pt'
 DEFAULT_QNET_WEIGHTS = WEIGHTS_DIR / 'qnet.pt'
+DEFAULT_DENSE_WEIGHTS = WEIGHTS_DIR / 'dense.pt'
 QUATERNION_ORDER = 'wxyz'
 # What a dense net's maps mean; a file saying otherwise is refused.
 DENSE_COORDINATES = {'normalisation': 'model box: (x - min) / size, metres, model frame',
