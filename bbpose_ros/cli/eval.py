@@ -120,11 +120,15 @@ def build_pipeline(models, args):
     """Build a pipeline with learned stages only where the ground truth does not replace them."""
     options = pipeline_options(args)
     if args.boxes == 'gt' and args.rotation == 'gt':
-        refiner = None
+        refiner = correspondences = None
         if options.refine:
             from bbpose_ros.core.pipeline.refinement import load_pose_refiner
             refiner = load_pose_refiner(models, min_score=options.refine_min_score)
-        return PosePipeline(models, refiner=refiner)
+        if options.refine and options.dense_mask != 'none':
+            from bbpose_ros.core.pipeline.loader import load_correspondences
+            correspondences = load_correspondences(models, options, args.dense_weights)
+        return PosePipeline(models, refiner=refiner, correspondences=correspondences,
+                            dense_poses=False, dense_mask=options.dense_mask)
     from bbpose_ros.core.pipeline.loader import load_pipeline
     return load_pipeline(models, options, args.detector_weights, args.qnet_weights,
                          dense_weights=args.dense_weights)

@@ -306,10 +306,13 @@ def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: Came
     """Refine perturbed ground-truth poses with the pipeline's refiner (see score_frames)."""
     timer = StageTimer()
     poses = [PoseEstimate(d, *perturb_pose(t.rotation, t.translation, perturb[0], perturb[1],
-                                           rng))
+                                           rng), source='given')
              for d, t in zip(detections, truths)]
     if pipeline.refiner is not None and poses:
-        poses = pipeline.refiner(image_rgb, camera, poses)
+        masks = None
+        if pipeline.correspondences is not None:      # the dense net's masks guide it
+            masks = pipeline.masks_of(pipeline.correspondences.maps(image_rgb, detections))
+        poses = pipeline.refiner(image_rgb, camera, poses, masks)
         timer.lap('refinement')
     return FrameResult(poses, timer.total())
 

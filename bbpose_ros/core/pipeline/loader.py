@@ -89,10 +89,7 @@ def load_pipeline(models: Mapping[str, ObjectModel],
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked)
         rotation.warm_up(batch)
     if options.runs_dense:
-        dense = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', names)
-        correspondences = DenseCorrespondenceEstimator(dense, models, options.backend,
-                                                       options.device, threads)
-        correspondences.warm_up(batch)
+        correspondences = load_correspondences(models, options, dense_weights)
     detector.warm_up()
     refiner = None
     if options.refine:
@@ -103,3 +100,14 @@ def load_pipeline(models: Mapping[str, ObjectModel],
                         correspondences=correspondences, dense_poses=options.uses_dense,
                         dense_translation=options.dense_translation,
                         dense_mask=options.dense_mask)
+
+
+def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOptions,
+                         dense_weights: Path | str | None = None
+                         ) -> DenseCorrespondenceEstimator:
+    """Build the dense stage of ``models`` from a weight file (default: the shipped one)."""
+    network = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', list(models))
+    stage = DenseCorrespondenceEstimator(network, models, options.backend, options.device,
+                                         options.threads or None)
+    stage.warm_up(min(len(models) * options.max_instances, MAX_WARM_UP_BATCH))
+    return stage

@@ -51,7 +51,8 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
-    from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
+    from bbpose_ros.core.pipeline.correspondences import (DenseCorrespondenceEstimator,
+                                                          DenseMaps)
     from bbpose_ros.core.pipeline.refinement import PoseRefiner
 
 
@@ -165,14 +166,18 @@ class PosePipeline:
         found = [k for k, group in enumerate(groups) if group]
         if self.refiner is None or not found:
             return FrameResult([groups[k][0] for k in found], timer.total())
-        masks = None
-        if dense is not None and self.dense_mask != 'none':
-            maps = dense[0]
-            masks = ForegroundMasks(maps.amodal if self.dense_mask == 'amodal' else maps.visible,
-                                    maps.squares_uv, np.ones(len(detections), bool)).take(found)
-        poses = self.refiner.best_of(image_rgb, camera, [groups[k] for k in found], masks)
+        masks = None if dense is None else self.masks_of(dense[0])
+        poses = self.refiner.best_of(image_rgb, camera, [groups[k] for k in found],
+                                     None if masks is None else masks.take(found))
         timer.lap('refinement')
         return FrameResult(poses, timer.total())
+
+    def masks_of(self, maps: DenseMaps) -> ForegroundMasks | None:
+        """Return the refiner's masks of a frame's DenseMaps (``dense_mask``), or None."""
+        if self.dense_mask == 'none':
+            return None
+        return ForegroundMasks(maps.amodal if self.dense_mask == 'amodal' else maps.visible,
+                               maps.squares_uv, np.ones(len(maps.squares_uv), bool))
 
     def _dense_candidates(self, camera, detections, dense_poses):
         """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""
