@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-What the node's worker runs: the pipeline of a NodeConfig and the marker builder of its objects.
+What the node's worker runs: the pipeline of a NodeConfig and the message builders of its objects.
 
 Built by the configure transition and again by a run-time set of a ``pipeline`` parameter;
 the worker takes the current Estimator once per frame, so a rebuild swaps both at once.
@@ -28,13 +28,14 @@ from bbpose_ros.core.pipeline.estimators import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros.conversions import MarkerArrayBuilder
+from bbpose_ros.ros.detections import DetectionsBuilder
 from bbpose_ros.ros.params import NodeConfig
 
 
 @dataclass(frozen=True)
 class Estimator:
     """
-    A pipeline and the MarkerArrayBuilder of its objects.
+    A pipeline and the MarkerArrayBuilder and DetectionsBuilder of its objects.
 
     ``pipeline`` is a PosePipeline, or a PoseTracker around one (same ``estimate`` and
     ``models``).
@@ -42,6 +43,7 @@ class Estimator:
 
     pipeline: PosePipeline | PoseTracker
     markers: MarkerArrayBuilder
+    detections: DetectionsBuilder
 
 
 def build_estimator(config: NodeConfig,
@@ -73,4 +75,4 @@ def build_estimator(config: NodeConfig,
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)
-    return Estimator(pipeline, MarkerArrayBuilder(models))
+    return Estimator(pipeline, MarkerArrayBuilder(models), DetectionsBuilder(models))

@@ -28,6 +28,10 @@ Publications, stamped with the image's header (stamp and frame_id):
 
 * ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
   instance found, for each configured object;
+* ``~/detections`` (vision_msgs/Detection3DArray), once per answered frame, one Detection3D
+  per pose;
+* ``/tf`` (tf2_msgs/TFMessage), with ``publish_tf``: one transform per pose, image frame ->
+  ``<tf_prefix><object>`` (see ``detections.instance_names``);
 * ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame;
 * ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
@@ -55,12 +59,14 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_system_default, QoSPolicyKind
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
+from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
 from bbpose_ros.core.viz import draw_estimates
-from bbpose_ros.ros import conversions
+from bbpose_ros.ros import conversions, detections
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.estimator import build_estimator
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
@@ -135,6 +141,9 @@ class BBPoseNode(LifecycleNode):
         self._pose_pubs = {name: self.create_publisher(PoseStamped, f'~/{name}/pose', 10)
                            for name in self.config.objects}
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 10)
+        self._detections_pub = self.create_publisher(Detection3DArray,
+                                                     detections.DETECTIONS_TOPIC, 10)
+        self._tf_pub = self.create_publisher(TFMessage, detections.TF_TOPIC, detections.TF_QOS)
         self._debug_pub = self.create_publisher(Image, '~/debug_image', 1)
         self._inputs = [
             self.create_subscription(cls, topic, callback, self.config.qos,
@@ -193,7 +202,8 @@ class BBPoseNode(LifecycleNode):
             self.destroy_subscription(subscription)
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
-        for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]:
+        for publisher in [*self._pose_pubs.values(), self._markers_pub, self._debug_pub,
+                          self._detections_pub, self._tf_pub]:
             self.destroy_publisher(publisher)
 
     def _before_set_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
@@ -290,7 +300,7 @@ class BBPoseNode(LifecycleNode):
         if not header.frame_id:
             self._warn('frame_id_empty', 'frame_id',
                        f'image (stamp {_stamp_text(header)}) answered anyway: header.frame_id '
-                       f'is empty, so its poses name no frame')
+                       f'is empty, so its poses name no frame (and no TF is published)')
         try:
             frame = Frame(header, conversions.image_to_rgb(
                 message, self.get_parameter('max_image_pixels').value), received_s)
@@ -356,10 +366,15 @@ class BBPoseNode(LifecycleNode):
             self.stats.count('answered')
 
     def _publish(self, header, image_rgb, camera, poses, estimator):
-        """Poses first, then the markers that mark the frame answered, then the debug image."""
+        """Poses, detections, TF, then the markers that mark the frame answered, debug image."""
         stamped, markers = conversions.frame_messages(header, poses, estimator.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
+        pose_msgs = [message.pose for _, message in stamped]
+        self._detections_pub.publish(estimator.detections(header, poses, pose_msgs))
+        if poses and header.frame_id and self.get_parameter('publish_tf').value:
+            self._tf_pub.publish(detections.transforms(
+                header, poses, pose_msgs, self.get_parameter('tf_prefix').value))
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
