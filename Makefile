@@ -75,12 +75,14 @@ test: setup
 # The main job: LM-O frames -> rosbag -> bbpose_node (through DDS) -> scored poses + plots.
 demo: setup
 	@echo "[demo] 1/2 writing the frames of $(DATASET) as a rosbag: $(OUT)/lmo_bag"
-	@rm -rf $(OUT)/lmo_bag $(OUT)/replay.json $(OUT)/replay_results_bag $(OUT)/plots
+	@rm -rf $(OUT)/lmo_bag $(OUT)/replay.json $(OUT)/replay_results_bag $(OUT)/plots \
+		$(OUT)/replay.mp4
 	$(BIN)/bbpose make-bag --dataset $(DATASET) --out $(OUT)/lmo_bag --start-stamp 1700000000
 	@echo "[demo] 2/2 replaying the bag through bbpose_node and scoring what it publishes"
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/bbpose replay-eval \
-		--bag $(OUT)/lmo_bag --json $(OUT)/replay.json --plots $(OUT)/plots
-	@echo "[demo] report: $(OUT)/replay.json  plots: $(OUT)/plots/  node output: $(OUT)/replay_results_bag"
+		--bag $(OUT)/lmo_bag --json $(OUT)/replay.json --plots $(OUT)/plots \
+		--video $(OUT)/replay.mp4
+	@echo "[demo] report: $(OUT)/replay.json  plots: $(OUT)/plots/  video: $(OUT)/replay.mp4  node output: $(OUT)/replay_results_bag"
 
 lint: setup
 	$(BIN)/python -m pytest test -m linter

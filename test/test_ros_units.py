@@ -31,6 +31,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 import yaml
 
+from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.estimators import load_pipeline
@@ -259,6 +260,17 @@ def test_the_yaml_documents_every_parameter_and_when_it_is_read():
                        and line.rstrip().endswith('.'))
         assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
         check_value(name, values[name])
+
+
+def test_the_rviz_config_shows_the_node_outputs():
+    root = Path(__file__).parents[1]
+    config = yaml.safe_load((root / 'config' / 'bbpose.rviz').read_text())
+    displays = {d['Class'].split('/')[-1]: d for d in config['Visualization Manager']['Displays']}
+    assert displays['Image']['Topic']['Value'] == '/bbpose_node/debug_image'
+    assert displays['MarkerArray']['Topic']['Value'] == '/bbpose_node/markers'
+    assert displays['TF']['Enabled']
+    assert config['Visualization Manager']['Global Options']['Fixed Frame'] == DEFAULT_FRAME_ID
+    assert "'bbpose.rviz'" in (root / 'launch' / 'bbpose.launch.py').read_text()
 
 
 def test_stamp_checker_tells_repeated_backward_and_future_stamps():
