@@ -28,10 +28,10 @@ Publications, stamped with the image's header (stamp and frame_id):
 
 * ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
   instance found, for each configured object;
-* ``~/detections`` (vision_msgs/Detection3DArray), once per answered frame, one Detection3D
-  per pose;
-* ``/tf`` (tf2_msgs/TFMessage), with ``publish_tf``: one transform per pose, image frame ->
-  ``<tf_prefix><object>`` (see ``detections.instance_names``);
+* ``~/detections`` (vision_msgs/Detection3DArray), once per answered frame while it has
+  subscribers, one Detection3D per pose;
+* ``/tf`` (tf2_msgs/TFMessage), with ``publish_tf`` and while it has subscribers: one
+  transform per pose, image frame -> ``<tf_prefix><object>`` (``detections.instance_names``);
 * ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame;
 * ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
@@ -370,9 +370,13 @@ class BBPoseNode(LifecycleNode):
         stamped, markers = conversions.frame_messages(header, poses, estimator.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
+        # Made only for subscribers, as the debug image: rclpy messages are slow to build
+        # (docs/experiments.md).
         pose_msgs = [message.pose for _, message in stamped]
-        self._detections_pub.publish(estimator.detections(header, poses, pose_msgs))
-        if poses and header.frame_id and self.get_parameter('publish_tf').value:
+        if self._detections_pub.get_subscription_count() > 0:
+            self._detections_pub.publish(estimator.detections(header, poses, pose_msgs))
+        if poses and header.frame_id and self.get_parameter('publish_tf').value and \
+                self._tf_pub.get_subscription_count() > 0:
             self._tf_pub.publish(detections.transforms(
                 header, poses, pose_msgs, self.get_parameter('tf_prefix').value))
         self._markers_pub.publish(markers)
