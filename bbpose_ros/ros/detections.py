@@ -47,9 +47,9 @@ def instance_names(poses: Sequence[PoseEstimate]) -> list[str]:
     """
     Name each pose of a frame: its object's name, then ``<name>_<k>`` for the k-th repeat.
 
-    The first pose of an object (the pipeline orders each object's instances best first)
-    keeps the plain name in every frame, so a listener of one instance per object never
-    sees its frame renamed; ``ape``, ``ape_1``, ``ape_2`` when three apes are found.
+    The first pose of an object in the frame (the detector lists its instances best-scored
+    first) keeps the plain name, so with one instance per object (``max_instances: 1``)
+    the names never change; ``ape``, ``ape_1``, ``ape_2`` when three apes are found.
     """
     seen = {}
     names = []
