@@ -34,7 +34,7 @@ $(STAMP): requirements.txt setup.py package.xml
 # cmake builds and installs it into the venv prefix (interfaces/README.md); once, until a
 # file of interfaces/ changes.
 $(INTERFACES_STAMP): $(STAMP) $(shell find interfaces -type f ! -name '*.md') | build-tools
-	@echo "[setup] building $(INTERFACES) into $(VENV) (rosidl + cmake, about a minute)"
+	@echo "[setup] building $(INTERFACES) into $(VENV) (rosidl + cmake, once)"
 	@set -e; for pkg in $(INTERFACES); do \
 		CMAKE_PREFIX_PATH=$(abspath $(VENV)) cmake -S interfaces/$$pkg \
 			-B $(INTERFACES_BUILD)/$$pkg -DCMAKE_INSTALL_PREFIX=$(abspath $(VENV)) \
