@@ -6,6 +6,10 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.bbpose-installed
+# vision_msgs and tf2_msgs, which no wheel ships, built from interfaces/ into the venv.
+INTERFACES := tf2_msgs vision_msgs
+INTERFACES_STAMP := $(VENV)/.bbpose-interfaces
+INTERFACES_BUILD := $(VENV)/.interfaces-build
 DATASET ?= ../shared/datasets/lmo
 OUT ?= out
 
@@ -14,9 +18,9 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export BBPOSE_DATASET := $(DATASET)
 
-.PHONY: setup system-deps test demo lint clean photos weights
+.PHONY: setup system-deps build-tools test demo lint clean photos weights
 
-setup: $(STAMP) system-deps
+setup: $(STAMP) $(INTERFACES_STAMP) system-deps
 
 $(STAMP): requirements.txt setup.py package.xml
 	@echo "[setup] creating/updating $(VENV) with pinned dependencies (CPU torch)"
@@ -25,6 +29,36 @@ $(STAMP): requirements.txt setup.py package.xml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
 	@touch $@
+
+# rosidl (from the pinned ros-jazzy wheels) generates each package's C and Python code and
+# cmake builds and installs it into the venv prefix (interfaces/README.md); once, until a
+# file of interfaces/ changes.
+$(INTERFACES_STAMP): $(STAMP) $(shell find interfaces -type f ! -name '*.md') | build-tools
+	@echo "[setup] building $(INTERFACES) into $(VENV) (rosidl + cmake, once)"
+	@set -e; for pkg in $(INTERFACES); do \
+		CMAKE_PREFIX_PATH=$(abspath $(VENV)) cmake -S interfaces/$$pkg \
+			-B $(INTERFACES_BUILD)/$$pkg -DCMAKE_INSTALL_PREFIX=$(abspath $(VENV)) \
+			-DPython3_EXECUTABLE=$(abspath $(BIN))/python -DBUILD_TESTING=OFF \
+			> $(INTERFACES_BUILD)-$$pkg.log 2>&1 \
+		&& cmake --build $(INTERFACES_BUILD)/$$pkg --parallel $$(nproc) \
+			>> $(INTERFACES_BUILD)-$$pkg.log 2>&1 \
+		&& cmake --install $(INTERFACES_BUILD)/$$pkg >> $(INTERFACES_BUILD)-$$pkg.log 2>&1 \
+		|| { tail -30 $(INTERFACES_BUILD)-$$pkg.log; \
+		     echo "[setup] building $$pkg failed; log: $(INTERFACES_BUILD)-$$pkg.log"; exit 1; }; \
+	done
+	@$(BIN)/python -c 'from vision_msgs.msg import Detection3DArray; from tf2_msgs.msg import TFMessage'
+	@touch $@
+
+# cmake and g++ from Debian build the interface packages (python3-dev: Python's headers).
+build-tools:
+	@if ! command -v cmake > /dev/null || ! command -v g++ > /dev/null \
+			|| ! $(BIN)/python -c 'import os, sysconfig, sys; sys.exit(not os.path.isfile( \
+				os.path.join(sysconfig.get_paths()["include"], "Python.h")))'; then \
+		echo "[setup] installing cmake g++ python3-dev (to build the interface packages)"; \
+		SUDO=$$( [ $$(id -u) = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends \
+			cmake g++ make python3-dev; \
+	fi
 
 # The synthetic-data renderer needs EGL and GL from Debian (Mesa llvmpipe, no GPU needed).
 system-deps:
@@ -41,12 +75,14 @@ test: setup
 # The main job: LM-O frames -> rosbag -> bbpose_node (through DDS) -> scored poses + plots.
 demo: setup
 	@echo "[demo] 1/2 writing the frames of $(DATASET) as a rosbag: $(OUT)/lmo_bag"
-	@rm -rf $(OUT)/lmo_bag $(OUT)/replay.json $(OUT)/replay_results_bag $(OUT)/plots
+	@rm -rf $(OUT)/lmo_bag $(OUT)/replay.json $(OUT)/replay_results_bag $(OUT)/plots \
+		$(OUT)/replay.mp4
 	$(BIN)/bbpose make-bag --dataset $(DATASET) --out $(OUT)/lmo_bag --start-stamp 1700000000
 	@echo "[demo] 2/2 replaying the bag through bbpose_node and scoring what it publishes"
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/bbpose replay-eval \
-		--bag $(OUT)/lmo_bag --json $(OUT)/replay.json --plots $(OUT)/plots
-	@echo "[demo] report: $(OUT)/replay.json  plots: $(OUT)/plots/  node output: $(OUT)/replay_results_bag"
+		--bag $(OUT)/lmo_bag --json $(OUT)/replay.json --plots $(OUT)/plots \
+		--video $(OUT)/replay.mp4
+	@echo "[demo] report: $(OUT)/replay.json  plots: $(OUT)/plots/  video: $(OUT)/replay.mp4  node output: $(OUT)/replay_results_bag"
 
 lint: setup
 	$(BIN)/python -m pytest test -m linter

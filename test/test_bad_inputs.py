@@ -39,6 +39,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from test_camera_model import DISTORTIONS, redistortion_maps
 from test_ros_support import GraphClient, NodeLog, REPO_ROOT, TIMEOUT_S, use_private_domain
 from test_ros_support import weight_files, write_params
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
@@ -320,6 +321,7 @@ def graph(lmo, lmo_root, tmp_path_factory):
     client.image = client.publisher(Image, topics.IMAGE_TOPIC)
     client.info = client.publisher(CameraInfo, topics.CAMERA_INFO_TOPIC)
     client.subscribe(MarkerArray, MARKERS)
+    client.subscribe(TFMessage, '/tf')
     client.subscribe(DiagnosticArray, '/diagnostics')
     client.raw = [serialize_message(m) for m in camera_messages(lmo.frames()[:1])[0]]
     assert client.spin_until(lambda: client.image.get_subscription_count() > 0
@@ -424,6 +426,11 @@ def test_bad_input_between_good_frames(graph, name):
         expected_answers = int(kind.answered or stamp == stamp_to_ns(good[0].header.stamp))
         assert sum(stamp_to_ns(m.markers[0].header.stamp) == stamp
                    for m in client.received[MARKERS]) == expected_answers
+    if kind.answered and kind.spoil is not None:   # a transform per pose, if it names a frame
+        transforms = [t for m in client.received['/tf'] for t in m.transforms
+                      if stamp_to_ns(t.header.stamp) == stamp_to_ns(image.header.stamp)]
+        boxes = [m for m in markers.markers if m.type == Marker.LINE_LIST]
+        assert len(transforms) == (len(boxes) if image.header.frame_id else 0)
     if kind.log:
         most = 2 if kind.send is _no_camera_info else 1      # 5 s of it: one throttle period
         assert 1 <= len(log_lines(log, kind.log)) <= most

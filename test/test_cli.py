@@ -135,4 +135,7 @@ def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
         weight.stderr
     bag = bbpose('make-bag', '--dataset', tmp_path / 'nope', '--out', tmp_path / 'bag')
     assert bag.returncode == 2 and 'nope' in bag.stderr
+    video = bbpose('replay-eval', '--bag', tmp_path / 'bag', '--json', out, '--video',
+                   tmp_path / 'replay.avi')
+    assert video.returncode == 2 and 'replay.avi' in video.stderr and '.mp4' in video.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []

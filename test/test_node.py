@@ -30,6 +30,8 @@ from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import CameraInfo, Image
 from test_ros_support import GraphClient, NodeLog, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
+from tf2_msgs.msg import TFMessage
+from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
@@ -49,6 +51,7 @@ START_NS = 1_700_000_000 * 1_000_000_000
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
 DEBUG = f'{OUT}/debug_image'
+DETECTIONS = f'{OUT}/detections'
 
 
 @pytest.fixture(scope='module')
@@ -77,6 +80,8 @@ def graph(lmo_root, weights, tmp_path_factory):
     for name in LMO_OBJECTS:
         client.subscribe(PoseStamped, f'{OUT}/{name}/pose')
     client.subscribe(MarkerArray, MARKERS)
+    client.subscribe(Detection3DArray, DETECTIONS)
+    client.subscribe(TFMessage, '/tf')
     client.subscribe(Image, DEBUG)
     client.subscribe(DiagnosticArray, '/diagnostics')
     assert client.spin_until(lambda: client.image.get_subscription_count() > 0
@@ -169,6 +174,44 @@ def test_every_bag_frame_answered_like_the_offline_pipeline(graph, bag, lmo_mode
                 m.markers[0].header.frame_id if topic == MARKERS else m.header.frame_id)
                for m in client.received[topic]}
         assert {(f.stamp_ns, f.frame_id) for f in frames} <= got
+
+
+def pose_values(pose):
+    """(x, y, z, qx, qy, qz, qw) of a geometry_msgs/Pose."""
+    p, q = pose.position, pose.orientation
+    return (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+
+
+def test_detections_and_tf_carry_the_poses_of_the_pose_topics(graph, bag):
+    """The bag replayed above: per frame, one Detection3D and one TF frame per PoseStamped."""
+    client = graph[0]
+    frames = {f.stamp_ns: f.frame_id for f in read_bag_frames(bag)}
+
+    def by_stamp(topic, header_of):
+        return {stamp_to_ns(header_of(m).stamp): m for m in client.received[topic]
+                if stamp_to_ns(header_of(m).stamp) in frames}
+
+    assert client.spin_until(lambda: len(by_stamp(DETECTIONS, lambda m: m.header)) == len(frames))
+    detections = by_stamp(DETECTIONS, lambda m: m.header)
+    transforms = by_stamp('/tf', lambda m: m.transforms[0].header)
+    for stamp, frame_id in frames.items():
+        stamped = sorted((name, pose_values(m.pose)) for name in LMO_OBJECTS
+                         for m in client.received[f'{OUT}/{name}/pose']
+                         if stamp_to_ns(m.header.stamp) == stamp)
+        assert stamped, 'the comparison needs poses'
+        array = detections[stamp]
+        assert array.header.frame_id == frame_id
+        assert sorted((d.results[0].hypothesis.class_id, pose_values(d.results[0].pose.pose))
+                      for d in array.detections) == stamped
+        assert all(d.header == array.header and 0 <= d.results[0].hypothesis.score <= 1
+                   and min(d.bbox.size.x, d.bbox.size.y, d.bbox.size.z) > 0.01
+                   for d in array.detections)
+        tf = transforms[stamp].transforms
+        assert {t.header.frame_id for t in tf} == {frame_id}
+        assert sorted((t.child_frame_id, (t.transform.translation.x, t.transform.translation.y,
+                                          t.transform.translation.z, t.transform.rotation.x,
+                                          t.transform.rotation.y, t.transform.rotation.z,
+                                          t.transform.rotation.w)) for t in tf) == stamped
 
 
 def test_marker_array_structure(graph):

@@ -19,13 +19,16 @@ import math
 import subprocess
 import sys
 
+from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_params
+from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.pipeline.loader import load_pipeline
 from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.video import read_video
 
 FRAMES = 3
 
@@ -41,7 +44,7 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     result = subprocess.run(
         [sys.executable, '-m', 'bbpose_ros.cli.main', 'replay-eval', '--bag', tmp_path / 'bag',
          '--json', out, '--plots', tmp_path / 'plots', '--params', params,
-         '--compare-tracking'],
+         '--compare-tracking', '--video', tmp_path / 'replay.mp4'],
         capture_output=True, text=True, timeout=300, cwd=REPO_ROOT)
     assert result.returncode == 0, result.stderr
     assert 'mean' in result.stdout and f'{FRAMES} sent, {FRAMES} answered' in result.stdout
@@ -68,7 +71,20 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
             assert mine == theirs or (math.isnan(theirs) and mine is None), (name, key)
 
     with Reader(out.parent / 'report_results_bag') as bag:
-        recorded = {c.topic for c in bag.connections}
-    assert {'/bbpose_node/markers', '/diagnostics'} <= recorded
+        recorded = {c.topic: c.msgtype for c in bag.connections}
+        poses = sum(1 for c, _, _ in bag.messages() if c.topic.endswith('/pose'))
+        arrays = [deserialize_message(bytes(raw), Detection3DArray)
+                  for c, _, raw in bag.messages() if c.topic == '/bbpose_node/detections']
+    assert {'/bbpose_node/markers', '/diagnostics', '/tf'} <= set(recorded)
+    assert recorded['/bbpose_node/detections'] == 'vision_msgs/msg/Detection3DArray'
+    assert poses > 0 and sum(len(a.detections) for a in arrays) == poses
+    # ~/detections carries the same poses as the PoseStamped topics, so it scores the same.
+    assert report['detections'] == {'mean': report['mean'], 'arrays': FRAMES,
+                                    'detections': poses, 'tf_transforms': poses}
+
+    video = read_video(tmp_path / 'replay.mp4')
+    height, width = frames[0].camera.height, frames[0].camera.width
+    assert len(video) == FRAMES and video[0].shape == (height, 2 * width, 3)
+    assert f'video of {FRAMES} frames' in result.stdout
     assert {p.name for p in (tmp_path / 'plots').iterdir()} >= {
         'recall_curves.png', 'objects.png', 'overlay_0000.png'}

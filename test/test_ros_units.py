@@ -30,6 +30,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 import yaml
 
+from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.options import PipelineOptions
@@ -37,6 +38,7 @@ from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.tracking import TrackingConfig
 from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros import conversions
+from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
 from bbpose_ros.ros.params import APPLIES, check_value, declare_parameters, PARAMETERS
@@ -132,6 +134,43 @@ def test_markers_structure(lmo_models):
     assert np.allclose(np.unique(points, axis=0), np.unique(corners, axis=0))
 
 
+def test_detections_and_transforms_of_a_frame(lmo_models):
+    header = Header(frame_id='cam')
+    header.stamp.sec = 7
+    rotations = [quat_wxyz_to_matrix(q) for q in ([0.9, 0.1, -0.3, 0.2], [0.5, 0.5, -0.5, 0.5],
+                                                  [1.0, 0.0, 0.0, 0.0])]
+    translations = [np.array([0.1, -0.05, 0.8]), np.array([0, 0, 1.0]), np.array([0.2, 0, 1])]
+    poses = [PoseEstimate(Detection(name, score, np.zeros(4)), rotation, translation)
+             for name, score, rotation, translation in zip(('ape', 'glue', 'ape'),
+                                                           (0.75, 0.5, 0.25), rotations,
+                                                           translations)]
+    pose_msgs = conversions.poses_to_messages(poses)
+    array = DetectionsBuilder(lmo_models)(header, poses, pose_msgs)
+    assert array.header == header and len(array.detections) == 3
+    corners = lmo_models['ape'].box_corners
+    for detection, pose, pose_msg in zip(array.detections, poses, pose_msgs):
+        assert detection.header == header and len(detection.results) == 1
+        result = detection.results[0]
+        assert (result.hypothesis.class_id, result.hypothesis.score) == (
+            pose.object_name, pose.confidence)
+        assert result.pose.pose == pose_msg and detection.bbox.center.orientation == \
+            pose_msg.orientation
+    box = array.detections[0].bbox
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    assert np.allclose([box.size.x, box.size.y, box.size.z], hi - lo)
+    # the centre of the posed box: the mean of its 8 posed corners
+    centre = (corners @ rotations[0].T + translations[0]).mean(axis=0)
+    assert np.allclose([box.center.position.x, box.center.position.y,
+                        box.center.position.z], centre)
+
+    assert instance_names(poses) == ['ape', 'glue', 'ape_1']
+    tf = transforms(header, poses, pose_msgs, 'bbpose/').transforms
+    assert [t.child_frame_id for t in tf] == ['bbpose/ape', 'bbpose/glue', 'bbpose/ape_1']
+    assert all(t.header == header for t in tf)
+    assert tf[1].transform.rotation == pose_msgs[1].orientation
+    assert (tf[2].transform.translation.x, tf[2].transform.translation.z) == (0.2, 1.0)
+
+
 def test_pose_message_uses_ros_quaternion_order():
     rotation = quat_wxyz_to_matrix([0.5, 0.5, -0.5, 0.5])
     message = conversions.pose_to_message(Header(), rotation, [0.1, -0.2, 0.9])
@@ -202,6 +241,8 @@ def test_check_value_names_the_parameter_and_the_problem():
                                ('objects', [], 'at least one'),
                                ('objects', ['ape', 'ape'], 'ape listed more than once'),
                                ('qos_reliability', 'sometimes', 'not one of reliable'),
+                               ('tf_prefix', '/bbpose/', 'starts with "/"'),
+                               ('tf_prefix', 'my cam', 'whitespace'),
                                ('qnet_weights', '/nonexistent.pt', 'not found')]:
         with pytest.raises(InputError, match=f'parameter {name}: .*{re.escape(words)}'):
             check_value(name, value)
@@ -221,6 +262,17 @@ def test_the_yaml_documents_every_parameter_and_when_it_is_read():
     # The file shows the defaults (PipelineOptions' and the table's); it sets one other value.
     assert {name for name, spec in PARAMETERS.items()
             if values[name] != spec.default} == {'inference_threads'}
+
+
+def test_the_rviz_config_shows_the_node_outputs():
+    root = Path(__file__).parents[1]
+    config = yaml.safe_load((root / 'config' / 'bbpose.rviz').read_text())
+    displays = {d['Class'].split('/')[-1]: d for d in config['Visualization Manager']['Displays']}
+    assert displays['Image']['Topic']['Value'] == '/bbpose_node/debug_image'
+    assert displays['MarkerArray']['Topic']['Value'] == '/bbpose_node/markers'
+    assert displays['TF']['Enabled']
+    assert config['Visualization Manager']['Global Options']['Fixed Frame'] == DEFAULT_FRAME_ID
+    assert "'bbpose.rviz'" in (root / 'launch' / 'bbpose.launch.py').read_text()
 
 
 def test_stamp_checker_tells_repeated_backward_and_future_stamps():

@@ -16,10 +16,12 @@
 ``bbpose replay-eval``: replay a bag through ``bbpose_node`` and score what it publishes.
 
 The node runs as a child process; the bag is played in lockstep (see ``graph.replay``), the
-node's outputs are recorded into a results bag beside the JSON, and its poses are scored
-against the bag's ground truth with the scoring code of ``bbpose eval``. Ground-truth and
-estimated poses are matched through their boxes: the projection of the object's mesh at
-each pose (the node publishes poses, not its detector's boxes).
+node's outputs are recorded into a results bag beside the JSON, and its poses (those of the
+PoseStamped topics, and separately those of ``~/detections``) are scored against the bag's
+ground truth with the scoring code of ``bbpose eval``. Ground-truth and estimated poses are
+matched through their boxes: the projection of the object's mesh at each pose (the node
+publishes poses, not its detector's boxes). ``--video`` writes each frame's estimates beside
+its ground truth as an .mp4.
 """
 
 from pathlib import Path
@@ -45,6 +47,7 @@ from bbpose_ros.core.eval.evaluation import summarize_objects
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.latency import timing_summary
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.video import check_video_path, write_video
 from bbpose_ros.ros.params import package_config_file, read_params_file
 from bbpose_ros.ros.params import resolve_dataset_dir
 
@@ -68,6 +71,11 @@ def add_parser(subparsers):
                         help='folder for PNG charts and overlay images')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
                         help='parameters file of the node (default %(default)s)')
+    parser.add_argument('--video', type=Path, default=None, metavar='FILE.mp4',
+                        help="video of every replayed frame: the node's poses beside the "
+                             'ground truth')
+    parser.add_argument('--video-fps', type=float, default=5.0,
+                        help='frames per second of --video (default %(default)s)')
     parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='override one node parameter (repeatable)')
     parser.add_argument('--answer-timeout', type=float, default=30.0,
@@ -103,12 +111,16 @@ def node_estimates(entries, models, camera):
             for name, rotation, translation in entries]
 
 
-def score_recording(frames, recording, models):
-    """Score the node's poses per frame; returns {object name: [InstanceScore]}."""
+def score_recording(frames, poses, models):
+    """
+    Score the node's poses per frame; returns {object name: [InstanceScore]}.
+
+    ``poses``: {stamp: [(object name, rotation, translation)]}, a Recording's ``poses`` or
+    ``detections``.
+    """
     scores = {name: [] for name in models}
     for frame in frames:
-        estimates = node_estimates(recording.poses.get(frame.stamp_ns, []), models,
-                                   frame.camera)
+        estimates = node_estimates(poses.get(frame.stamp_ns, []), models, frame.camera)
         for score in score_frame(models, ground_truth_instances(frame, models), estimates,
                                  frame.camera):
             scores[score.object_name].append(score)
@@ -131,13 +143,24 @@ def latencies_ms(recording):
     return latencies
 
 
-def recording_report(recording, scores):
-    """Make a replay's report: per-object and mean scores, node and graph timings, frames."""
+def recording_report(recording, scores, detection_scores):
+    """
+    Make a replay's report: per-object and mean scores, node and graph timings, frames.
+
+    ``scores``, ``detection_scores``: ``score_recording`` of the PoseStamped topics' poses
+    and of the ~/detections ones. The report's ``detections`` holds the latter's mean, how
+    many arrays and detections arrived, and how many /tf transforms.
+    """
     report = summarize_objects(scores)
     report['timing_ms'] = dict(recording.timings_ms)
     report['timing_ms'].update(timing_summary(latencies_ms(recording)))
     report['frames'] = {'sent': len(recording.published_s),
                         'answered': len(recording.answered_s)}
+    report['detections'] = {
+        'mean': summarize_objects(detection_scores)['mean'],
+        'arrays': len(recording.detections),
+        'detections': sum(len(entries) for entries in recording.detections.values()),
+        'tf_transforms': sum(recording.transforms.values())}
     return report
 
 
@@ -152,6 +175,19 @@ def write_plots(folder, frames, recording, models, scores, per_object):
         image = viz.draw_comparison(frame.image_rgb, frame.camera, models, truths,
                                     recording.poses.get(frame.stamp_ns, []))
         viz.write_image(folder / f'overlay_{index:04d}.png', image)
+
+
+def video_frames(frames, recording, models):
+    """Yield per frame its PoseStamped estimates (left) beside its ground truth (right)."""
+    for index, frame in enumerate(frames):
+        estimates = recording.poses.get(frame.stamp_ns, [])
+        truths = [(i.object_name, i.rotation, i.translation)
+                  for i in ground_truth_instances(frame, models)]
+        yield viz.side_by_side([
+            (viz.draw_comparison(frame.image_rgb, frame.camera, models, [], estimates),
+             f'bbpose_node: {len(estimates)} poses (frame {index})'),
+            (viz.draw_comparison(frame.image_rgb, frame.camera, models, [], truths),
+             f'ground truth: {len(truths)} objects')])
 
 
 def record(args, objects, frame_count, overrides):
@@ -179,6 +215,8 @@ def record(args, objects, frame_count, overrides):
 
 def run(args):
     """Replay, score, print the table and write the JSON, bag and plots; returns 0."""
+    if args.video is not None:
+        check_video_path(args.video)
     values = read_params_file(args.params, args.param)
     models = load_bop_models(resolve_dataset_dir(values['dataset_dir']), values['objects'])
     frames = read_bag_frames(args.bag)
@@ -187,13 +225,15 @@ def run(args):
     recording = record(args, list(models), len(frames), args.param)
     bag_path = results_bag_path(args.json)
     write_results_bag(bag_path, recording.messages)
-    scores = score_recording(frames, recording, models)
-    report = recording_report(recording, scores)
+    scores = score_recording(frames, recording.poses, models)
+    report = recording_report(recording, scores,
+                              score_recording(frames, recording.detections, models))
     if args.compare_tracking:
         tracking = bool(values['tracking'])
         flipped = record(args, list(models), len(frames),
                          list(args.param) + [f'tracking:={str(not tracking).lower()}'])
-        other = recording_report(flipped, score_recording(frames, flipped, models))
+        other = recording_report(flipped, score_recording(frames, flipped.poses, models),
+                                 score_recording(frames, flipped.detections, models))
         report['tracking'] = {
             'on' if run_tracking else 'off': {key: run[key] for key in
                                               ('mean', 'timing_ms', 'frames')}
@@ -202,6 +242,11 @@ def run(args):
                         'param_overrides': list(args.param), 'results_bag': str(bag_path)}
     print(format_report(report))
     print(f'frames: {report["frames"]["sent"]} sent, {report["frames"]["answered"]} answered')
+    detections = report['detections']
+    print(f'~/detections: {detections["arrays"]} arrays, {detections["detections"]} '
+          f'detections, ADD(-S) {detections["mean"]["add_s_recall"]:.3f}, 5cm5deg '
+          f'{detections["mean"]["cm5deg5"]:.3f}; /tf: {detections["tf_transforms"]} '
+          f'transforms')
     for mode, run in report.get('tracking', {}).items():
         mean, answer = run['mean'], run['timing_ms'].get('answer', {})
         print(f'tracking {mode}: ADD(-S) {mean["add_s_recall"]:.3f}, 5cm5deg '
@@ -213,4 +258,7 @@ def run(args):
     if args.plots is not None:
         write_plots(args.plots, frames, recording, models, scores, report['objects'])
         print(f'plots written to {args.plots}')
+    if args.video is not None:
+        count = write_video(args.video, video_frames(frames, recording, models), args.video_fps)
+        print(f'video of {count} frames written to {args.video}')
     return 0

@@ -43,6 +43,7 @@ PALETTE = ((243, 195, 0), (135, 86, 146), (243, 132, 0), (161, 202, 241), (190, 
            (194, 178, 128), (132, 132, 130), (0, 136, 86), (230, 143, 172), (0, 103, 165),
            (249, 147, 121), (96, 78, 151), (246, 166, 0), (179, 68, 108), (220, 211, 0))
 GROUND_TRUTH_COLOR = (0, 255, 0)
+CAPTION_SCALE = 0.6       # cv2 font scale of side_by_side captions
 _SUBPIXEL_BITS = 4        # cv2 drawing with 1/16 pixel precision
 _MAX_COORDINATE = 1 << 20  # projected points far off the image are clipped to this
 
@@ -135,3 +136,21 @@ def _point(uv):
     scaled = np.clip(np.asarray(uv, dtype=float) * (1 << _SUBPIXEL_BITS),
                      -_MAX_COORDINATE, _MAX_COORDINATE)
     return tuple(int(round(c)) for c in scaled)
+
+
+def side_by_side(panels: Sequence[tuple[np.ndarray, str]]) -> np.ndarray:
+    """
+    Put (H, W, 3) uint8 RGB images of one height side by side, each captioned top left.
+
+    ``panels``: [(image, caption)]; the captions are drawn on copies.
+    """
+    captioned = []
+    for image, caption in panels:
+        canvas = np.array(image, dtype=np.uint8, copy=True)
+        (width, height), baseline = cv2.getTextSize(caption, cv2.FONT_HERSHEY_SIMPLEX,
+                                                    CAPTION_SCALE, 1)
+        cv2.rectangle(canvas, (0, 0), (width + 8, height + baseline + 8), (0, 0, 0), -1)
+        cv2.putText(canvas, caption, (4, height + 4), cv2.FONT_HERSHEY_SIMPLEX,
+                    CAPTION_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
+        captioned.append(canvas)
+    return np.concatenate(captioned, axis=1)

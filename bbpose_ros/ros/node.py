@@ -30,6 +30,10 @@ Publications, stamped with the image's header (stamp and frame_id):
 
 * ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
   instance found, for each configured object;
+* ``~/detections`` (vision_msgs/Detection3DArray), once per answered frame while it has
+  subscribers, one Detection3D per pose;
+* ``/tf`` (tf2_msgs/TFMessage), with ``publish_tf`` and while it has subscribers: one
+  transform per pose, image frame -> ``<tf_prefix><object>`` (``detections.instance_names``);
 * ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame;
 * ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
@@ -65,6 +69,8 @@ from rclpy.qos import qos_profile_system_default, QoSPolicyKind
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
+from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.data.models import bop_object_ids
@@ -75,7 +81,7 @@ from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.core.viz import draw_estimates
-from bbpose_ros.ros import conversions
+from bbpose_ros.ros import conversions, detections
 from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
 from bbpose_ros.ros.node_pipeline import build_node_pipeline, NodePipeline
 from bbpose_ros.ros.pairing import LatestSlot, StampPairer
@@ -133,6 +139,8 @@ class BBPoseNode(LifecycleNode):
         # Lifecycle publishers: made by configure, enabled by activate.
         self._pose_pubs: dict[str, LifecyclePublisher] = {}
         self._markers_pub: LifecyclePublisher | None = None
+        self._detections_pub: LifecyclePublisher | None = None
+        self._tf_pub: LifecyclePublisher | None = None
         self._debug_pub: LifecyclePublisher | None = None
         # Made by activate, destroyed by deactivate.
         self._inputs: list[Subscription] = []
@@ -167,6 +175,10 @@ class BBPoseNode(LifecycleNode):
         self._pose_pubs = {}
         self._add_pose_publishers(config.objects)
         self._markers_pub = self.create_lifecycle_publisher(MarkerArray, '~/markers', 10)
+        self._detections_pub = self.create_lifecycle_publisher(
+            Detection3DArray, detections.DETECTIONS_TOPIC, 10)
+        self._tf_pub = self.create_lifecycle_publisher(TFMessage, detections.TF_TOPIC,
+                                                       detections.TF_QOS)
         self._debug_pub = self.create_lifecycle_publisher(Image, '~/debug_image', 1)
         self.get_logger().info(f'configured: {", ".join(config.objects)}')
         return SUCCESS
@@ -231,11 +243,13 @@ class BBPoseNode(LifecycleNode):
             self.config = self.pipeline = None
             self._pending_changes = {}
             self._generation += 1
-        publishers = [*self._pose_pubs.values(), self._markers_pub, self._debug_pub]
+        publishers = [*self._pose_pubs.values(), self._markers_pub, self._detections_pub,
+                      self._tf_pub, self._debug_pub]
         for publisher in publishers:
             if publisher is not None:
                 self.destroy_lifecycle_publisher(publisher)
-        self._pose_pubs, self._markers_pub, self._debug_pub = {}, None, None
+        self._pose_pubs = {}
+        self._markers_pub = self._detections_pub = self._tf_pub = self._debug_pub = None
 
     def _stop_serving(self) -> None:
         if not self._serving:
@@ -406,7 +420,7 @@ class BBPoseNode(LifecycleNode):
         if not header.frame_id:
             self._warn('frame_id_empty', 'frame_id',
                        f'image (stamp {_stamp_text(header)}) answered anyway: header.frame_id '
-                       f'is empty, so its poses name no frame')
+                       f'is empty, so its poses name no frame (and no TF is published)')
         try:
             frame = Frame(header, conversions.image_to_rgb(
                 message, self.get_parameter('max_image_pixels').value), received_s,
@@ -479,10 +493,19 @@ class BBPoseNode(LifecycleNode):
 
     def _publish(self, header: Header, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  poses: Sequence[PoseEstimate], pipeline: NodePipeline) -> None:
-        """Poses first, then the markers that mark the frame answered, then the debug image."""
+        """Poses, detections, TF, then the markers that mark the frame answered, debug image."""
         stamped, markers = conversions.frame_messages(header, poses, pipeline.markers)
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
+        # Made only for subscribers, as the debug image: rclpy messages are slow to build
+        # (docs/experiments.md).
+        pose_msgs = [message.pose for _, message in stamped]
+        if self._detections_pub.get_subscription_count() > 0:
+            self._detections_pub.publish(pipeline.detections(header, poses, pose_msgs))
+        if poses and header.frame_id and self.get_parameter('publish_tf').value and \
+                self._tf_pub.get_subscription_count() > 0:
+            self._tf_pub.publish(detections.transforms(
+                header, poses, pose_msgs, self.get_parameter('tf_prefix').value))
         self._markers_pub.publish(markers)
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-What the node's worker runs: the pipeline of a NodeConfig and the marker builder of its objects.
+What the node's worker runs: the pipeline of a NodeConfig and the message builders of its objects.
 
 Built by the configure transition and again, off the executor thread, by a run-time set of
 a ``pipeline`` parameter; the worker takes the current NodePipeline once per frame, so a
@@ -29,13 +29,14 @@ from bbpose_ros.core.pipeline.loader import load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros.conversions import MarkerArrayBuilder
+from bbpose_ros.ros.detections import DetectionsBuilder
 from bbpose_ros.ros.params import NodeConfig
 
 
 @dataclass(frozen=True)
 class NodePipeline:
     """
-    A pipeline and the MarkerArrayBuilder of its objects.
+    A pipeline and the MarkerArrayBuilder and DetectionsBuilder of its objects.
 
     ``pipeline`` is a PosePipeline, or a PoseTracker around one (same ``estimate`` and
     ``models``).
@@ -43,6 +44,7 @@ class NodePipeline:
 
     pipeline: PosePipeline | PoseTracker
     markers: MarkerArrayBuilder
+    detections: DetectionsBuilder
 
 
 def build_node_pipeline(config: NodeConfig,
@@ -71,4 +73,4 @@ def build_node_pipeline(config: NodeConfig,
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)
-    return NodePipeline(pipeline, MarkerArrayBuilder(models))
+    return NodePipeline(pipeline, MarkerArrayBuilder(models), DetectionsBuilder(models))

@@ -127,6 +127,13 @@ def _check_weights_file(text):
         raise InputError(f'weights file not found: {text}')
 
 
+def _check_tf_prefix(prefix):
+    # tf2 refuses frame ids with a leading slash, and whitespace makes them unusable.
+    if prefix.startswith('/') or any(c.isspace() for c in prefix):
+        raise InputError(f'"{prefix}" starts with "/" or holds whitespace (tf2 frame ids '
+                         f'may not)')
+
+
 def _dataset_path(text):
     return Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
 
@@ -222,6 +229,12 @@ PARAMETERS = {
         'frame'),
     'publish_debug_image': ParameterSpec(
         True, 'Draw and publish ~/debug_image (only while it has subscribers).', 'frame'),
+    'publish_tf': ParameterSpec(
+        True, 'Publish one /tf transform per pose: image frame_id -> <tf_prefix><object> '
+        '(<object>_<k> for the k-th further instance).', 'frame'),
+    'tf_prefix': ParameterSpec(
+        '', 'Prefix of the TF child frame names (e.g. bbpose/); empty: the object names.',
+        'frame', check=_check_tf_prefix),
     'max_image_pixels': ParameterSpec(
         33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
         value_range=(1, 2 ** 31 - 1)),

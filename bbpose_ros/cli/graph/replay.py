@@ -30,12 +30,16 @@ import subprocess
 import sys
 import time
 
+from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Writer
+from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 from sensor_msgs.msg import Image
+from tf2_msgs.msg import TFMessage
+from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.bags import topics
@@ -106,6 +110,9 @@ class Recording:
         answered_s: {stamp: when its MarkerArray arrived}.
         poses: {stamp: [(object name, rotation (3, 3), translation (3,) metres)]}.
         pose_received_s: {stamp: when its last PoseStamped arrived}.
+        detections: {stamp: [(class id, rotation (3, 3), translation (3,) metres)]} of its
+            Detection3DArray (an empty list: an array without detections).
+        transforms: {stamp: number of /tf transforms}.
         timings_ms: the node's stage latencies from its last diagnostics.
         counts: the node's frame counters from its last diagnostics.
         messages: [(topic, type name, receive time ns, raw CDR)] for the results bag.
@@ -116,6 +123,8 @@ class Recording:
     answered_s: dict = field(default_factory=dict)
     poses: dict = field(default_factory=dict)
     pose_received_s: dict = field(default_factory=dict)
+    detections: dict = field(default_factory=dict)
+    transforms: dict = field(default_factory=dict)
     timings_ms: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
     messages: list = field(default_factory=list)
@@ -127,7 +136,8 @@ class Recorder:
 
     Args:
         node: the rclpy Node that owns the subscriptions.
-        objects: object names whose ``/<node>/<object>/pose`` topics are recorded.
+        objects: object names whose ``/<node>/<object>/pose`` topics are recorded; also
+            ``/<node>/detections``, ``/<node>/markers``, ``/tf`` and ``/diagnostics``.
 
     """
 
@@ -140,6 +150,8 @@ class Recorder:
         self.topics = {f'/{NODE_NAME}/{name}/pose': (PoseStamped, self._on_pose, name)
                        for name in objects}
         self.topics[self.markers_topic] = (MarkerArray, self._on_markers, None)
+        self.topics[f'/{NODE_NAME}/detections'] = (Detection3DArray, self._on_detections, None)
+        self.topics['/tf'] = (TFMessage, self._on_tf, None)
         self.topics['/diagnostics'] = (DiagnosticArray, self._on_diagnostics, None)
         for topic, (cls, handler, name) in self.topics.items():
             node.create_subscription(cls, topic, self._callback(topic, cls, handler, name), 100,
@@ -175,6 +187,17 @@ class Recorder:
         rotation, translation = topics.pose_from_message(message)
         self.recording.poses.setdefault(stamp, []).append((name, rotation, translation))
         self.recording.pose_received_s[stamp] = time.perf_counter()
+
+    def _on_detections(self, message, _):
+        self.recording.detections[stamp_to_ns(message.header.stamp)] = [
+            (detection.results[0].hypothesis.class_id,
+             *topics.pose_from_message(detection.results[0].pose))
+            for detection in message.detections]
+
+    def _on_tf(self, message, _):
+        for transform in message.transforms:
+            stamp = stamp_to_ns(transform.header.stamp)
+            self.recording.transforms[stamp] = self.recording.transforms.get(stamp, 0) + 1
 
     def _on_markers(self, message, _):
         if message.markers:
@@ -235,10 +258,29 @@ def write_results_bag(path, messages, storage='mcap'):
         if not (path / 'metadata.yaml').is_file():
             raise InputError(f'{path} exists and is not a bag; not replacing it')
         shutil.rmtree(path)
+    typestore = typestore_of({msgtype for _, msgtype, _, _ in messages})
     with Writer(path, version=9, storage_plugin=STORAGE[storage]) as writer:
         connections = {}
         for topic, msgtype, time_ns, raw in messages:
             if topic not in connections:
                 connections[topic] = writer.add_connection(topic, msgtype,
-                                                           typestore=topics.TYPESTORE)
+                                                           typestore=typestore)
             writer.write(connections[topic], time_ns, raw)
+
+
+def typestore_of(msgtypes):
+    """
+    Return rosbags' Jazzy typestore, plus the packages of ``msgtypes`` that it lacks.
+
+    rosbags knows no vision_msgs: each missing package's message definitions are read from
+    its installed share/<package>/msg/*.msg (the venv's, or a full ROS install's).
+    """
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    missing = {name.split('/')[0] for name in msgtypes if name not in typestore.types}
+    definitions = {}
+    for package in sorted(missing):
+        for path in sorted((Path(get_package_share_directory(package)) / 'msg').glob('*.msg')):
+            definitions.update(get_types_from_msg(path.read_text(),
+                                                  f'{package}/msg/{path.stem}'))
+    typestore.register(definitions)
+    return typestore
