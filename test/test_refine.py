@@ -258,13 +258,14 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
         groups.append([PoseEstimate(detection, *perturb_pose(truth.rotation, truth.translation,
                                                              angle, offset, rng))
                        for angle, offset in ((60.0, 0.05), (5.0, 0.01))])
-    refiner = PoseRefiner(models, screening_iterations=3)
+    # Without starts given back (keep_better_start), the survivor of the screening continues
+    # where it stopped: the same pose as refining that candidate straight through.
+    config = dataclasses.replace(RefinerConfig(), keep_better_start=False)
+    refiner = PoseRefiner(models, config, screening_iterations=3)
     assert refiner.screening_iterations < refiner.config.iterations
     kept = refiner.best_of(image, frame.camera, groups)
     assert len(kept) == len(groups)
-    # The survivor of the screening continues where it stopped: the same pose as refining
-    # that candidate straight through.
-    straight = PoseRefiner(models)
+    straight = PoseRefiner(models, config)
     for pose, group in zip(kept, groups):
         ends = [straight(image, frame.camera, [candidate])[0] for candidate in group]
         assert any(np.allclose(pose.rotation, end.rotation, atol=1e-9)
@@ -272,6 +273,23 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
                    and pose.refinement_score == end.refinement_score for end in ends)
     near = [rotation_error_deg(p.rotation, t.rotation) < 10.0 for p, t in zip(kept, truths)]
     assert np.mean(near) >= 0.5
+
+
+def test_a_refinement_that_lowers_the_score_gives_the_start_back(viewpoint_models,
+                                                                  lmo_frames):
+    models, _ = viewpoint_models
+    frame = lmo_frames[3]
+    bins = color_bins(frame.load_image())
+    truths = [i for i in frame.instances if i.object_name in models]
+    args = (bins, frame.camera, [models[t.object_name] for t in truths],
+            [t.rotation for t in truths], [t.translation for t in truths])
+    at_start = refine_poses(*args, RefinerConfig(), iterations=0)
+    kept = refine_poses(*args, RefinerConfig())
+    moved = refine_poses(*args, dataclasses.replace(RefinerConfig(), keep_better_start=False))
+    for start, keep, move, truth in zip(at_start, kept, moved, truths):
+        assert keep.score == max(start.score, move.score)
+        if start.score > move.score:
+            np.testing.assert_array_equal(keep.translation, truth.translation)
 
 
 def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models):

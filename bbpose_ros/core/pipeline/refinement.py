@@ -62,7 +62,8 @@ class PoseRefiner:
             many iterations and only the best-scored continues (at least the config's
             iterations: every candidate is refined to the end). Screening needs the config's
             histogram_rate 1 (colours re-measured in full), under which it gives the same
-            pose as refining the chosen candidate in one run (unless no colours can be
+            pose as refining the chosen candidate in one run (unless keep_better_start gave
+            a start back) (unless no colours can be
             measured at the pose it reached: then it ends as 'outside_image'); with another
             rate every candidate is refined to the end.
 

@@ -71,6 +71,8 @@ class RefinerConfig:
         mask_weight: for a pose refined with a predicted foreground mask, how much the
             mask counts against the colours (0..1, 1: the mask alone; see
             ``region_modality``).
+        keep_better_start: give back the start of a pose whose score the refinement
+            lowered (the score is measured at the start too, one pass more).
 
     """
 
@@ -83,6 +85,7 @@ class RefinerConfig:
     histogram_rate: float = 1.0
     min_continuous_px: float = 3.0
     mask_weight: float = 1.0
+    keep_better_start: bool = True
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -189,6 +192,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
+    start_scores = modality.scores(rotation, translation) if config.keep_better_start else None
     seen_at_end = None      # colours measured at the final poses, when an iteration did it
     for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
@@ -216,6 +220,10 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
             hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
     scores = modality.scores(rotation, translation)
+    if start_scores is not None:        # a refinement that lowers the score is not taken
+        back = (status == 'ok') & (start_scores > scores)
+        rotation[back], translation[back] = start_rotation[back], start_translation[back]
+        scores = np.where(back, start_scores, scores)
     if not learning.all():      # what a track learns from this frame: the colours at the end
         seen_f, seen_b, seen = seen_at_end or modality.line_colors(rotation, translation)
         final = ~learning & seen
