@@ -37,6 +37,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import shaders
 from bbpose_ros.core.render.mesh import RenderMesh
 from bbpose_ros.core.render.projection import opengl_projection, projected_box_uv
+from bbpose_ros.core.render.scene_light import Material, SceneLights, TexturedPlane
 
 # The instance-id target is 8 bits wide and 0 is the background.
 MAX_DRAWS = 255
@@ -103,6 +104,19 @@ class RenderResult:
     full_pixel_counts: dict[int, int]
 
 
+@dataclass(frozen=True)
+class LitRenderResult(RenderResult):
+    """
+    What ``MeshRenderer.render_lit`` produced: a ``RenderResult`` plus the drawn pixels.
+
+    Attributes:
+        covered: (H, W) bool pixels a mesh or a plane covers (the rest is empty).
+
+    """
+
+    covered: np.ndarray
+
+
 class MeshRenderer:
     """
     Render coloured meshes with a shared depth buffer, instance ids and full silhouettes.
@@ -149,6 +163,41 @@ class MeshRenderer:
         intrinsics for this image (same width and height), e.g. to render a crop of a larger
         frame (``CameraIntrinsics.cropped``). Returns a ``RenderResult``.
         """
+        camera = self._checked_camera(draws, camera)
+        gl = self._context()
+        rgb, ids = gl.render_shaded(draws, lighting, camera)
+        return RenderResult(rgb, ids, *self._full_masks(gl, draws, ids, full_mask_indices,
+                                                        camera))
+
+    def render_lit(self, draws: Sequence[Draw], lights: SceneLights,
+                   materials: Sequence[Material] | None = None,
+                   planes: Sequence[TexturedPlane] = (),
+                   full_mask_indices: Iterable[int] = (),
+                   camera: CameraIntrinsics | None = None) -> LitRenderResult:
+        """
+        Draw ``draws`` and textured ``planes`` under point lights with shadows and highlights.
+
+        Like ``render`` (same instance ids, full masks and ``camera``), but lit by a
+        ``SceneLights`` (ambient, up to three shadow-casting point lights, Blinn-Phong
+        highlights with each draw's ``Material``; default matte) and with the planes (a
+        table, walls: id 0) in the depth buffer. Returns a ``LitRenderResult``.
+        """
+        from bbpose_ros.core.render.lit_pass import LitPass
+        camera = self._checked_camera(draws, camera)
+        materials = [Material()] * len(draws) if materials is None else list(materials)
+        if len(materials) != len(draws):
+            raise InputError(f'{len(materials)} materials for {len(draws)} draws')
+        gl = self._context()
+        if gl.lit_pass is None:
+            gl.lit_pass = LitPass(gl.ctx, gl.buffers, gl.frame)
+        rgba, ids = gl.lit_pass.render(draws, materials, lights, planes, opengl_projection(
+            camera, self.near, self.far))
+        return LitRenderResult(np.ascontiguousarray(rgba[..., :3]), ids,
+                               *self._full_masks(gl, draws, ids, full_mask_indices, camera),
+                               covered=rgba[..., 3] > 0)
+
+    def _checked_camera(self, draws, camera):
+        """The camera of one image (default the renderer's), checked with the draws."""
         camera = self.camera if camera is None else camera
         if (camera.width, camera.height) != (self.camera.width, self.camera.height):
             raise InputError(f'render camera is {camera.width}x{camera.height}, the renderer '
@@ -158,8 +207,10 @@ class MeshRenderer:
         unknown = sorted({draw.mesh for draw in draws} - set(self.meshes))
         if unknown:
             raise InputError(f'unknown mesh name(s): {", ".join(unknown)}')
-        gl = self._context()
-        rgb, ids = gl.render_shaded(draws, lighting, camera)
+        return camera
+
+    def _full_masks(self, gl, draws, ids, full_mask_indices, camera):
+        """Full silhouettes {index: (H, W) bool} and pixel counts of the chosen draws."""
         boxes = [projected_box_uv(camera, self.meshes[draw.mesh].hull_points,
                                   draw.rotation, draw.translation) for draw in draws]
         full_masks, counts = {}, {}
@@ -170,7 +221,7 @@ class MeshRenderer:
             else:
                 full_masks[index], counts[index] = gl.render_silhouette(
                     draws[index], boxes[index], camera)
-        return RenderResult(rgb, ids, full_masks, counts)
+        return full_masks, counts
 
     def _is_unoccluded_and_inside(self, index, boxes):
         """Tell whether no other draw's box overlaps draw ``index``'s box, inside the image."""
@@ -211,11 +262,14 @@ class _GlState:
                                   fragment_shader=shaders.SHADED_FRAGMENT)
         self.silhouette = ctx.program(vertex_shader=shaders.SILHOUETTE_VERTEX,
                                       fragment_shader=shaders.SILHOUETTE_FRAGMENT)
-        self.vaos = {}
+        self.vaos, self.buffers = {}, {}
+        # The lit pass (``render_lit``) is made on first use.
+        self.lit_pass = None
         for name, mesh in meshes.items():
             vbo = ctx.buffer(np.hstack([mesh.vertices, mesh.normals, mesh.colors])
                              .astype('f4').tobytes())
             ibo = ctx.buffer(mesh.faces.astype('u4').tobytes())
+            self.buffers[name] = (vbo, ibo)
             self.vaos[name] = (
                 ctx.vertex_array(self.shaded, [(vbo, '3f 3f 3f', 'in_position', 'in_normal',
                                                 'in_color')], ibo, index_element_size=4),
