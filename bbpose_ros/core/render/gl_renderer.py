@@ -197,7 +197,7 @@ class MeshRenderer:
                                covered=rgba[..., 3] > 0)
 
     def _checked_camera(self, draws, camera):
-        """The camera of one image (default the renderer's), checked with the draws."""
+        """Return the camera of one image (default the renderer's), checked with the draws."""
         camera = self.camera if camera is None else camera
         if (camera.width, camera.height) != (self.camera.width, self.camera.height):
             raise InputError(f'render camera is {camera.width}x{camera.height}, the renderer '

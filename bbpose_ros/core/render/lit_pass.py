@@ -32,8 +32,8 @@ _SHADOW_OFFSET = (2.0, 8.0)
 class LitPass:
     """The programs, shadow maps and plane buffers of the lit pass in one GL context."""
 
-    def __init__(self, ctx: moderngl.Context, buffers: dict[str, tuple[moderngl.Buffer,
-                                                                         moderngl.Buffer]],
+    def __init__(self, ctx: moderngl.Context,
+                 buffers: dict[str, tuple[moderngl.Buffer, moderngl.Buffer]],
                  frame: moderngl.Framebuffer) -> None:
         self.ctx, self.frame = ctx, frame
         self.lit = ctx.program(vertex_shader=lit_shaders.LIT_VERTEX,
@@ -42,7 +42,7 @@ class LitPass:
                                   fragment_shader=lit_shaders.SHADOW_FRAGMENT)
         self.vaos = {
             name: (ctx.vertex_array(self.lit, [(vbo, '3f 3f 3f', 'in_position', 'in_normal',
-                                                 'in_color')], ibo, index_element_size=4),
+                                                'in_color')], ibo, index_element_size=4),
                    ctx.vertex_array(self.shadow, [(vbo, '3f 24x', 'in_position')], ibo,
                                     index_element_size=4))
             for name, (vbo, ibo) in buffers.items()}
@@ -141,7 +141,7 @@ class LitPass:
 
     def _texture(self, slot, image):
         """
-        The GL texture of plane ``slot``, holding an (T, T2, 3) uint8 image.
+        Return the GL texture of plane ``slot``, holding an (T, T2, 3) uint8 image.
 
         Uploaded before anything is drawn: an upload in the middle of a frame makes
         llvmpipe rasterise what was drawn so far.
@@ -159,4 +159,3 @@ class LitPass:
         texture.write(image.tobytes())
         texture.build_mipmaps()
         return texture
-
