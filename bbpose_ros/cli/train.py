@@ -47,6 +47,7 @@ from bbpose_ros.core.training.device import DEVICES, training_device
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
 VERIFIER_CHANNELS = (12, 24, 48, 48)
+SCENE_STYLES = ('random', 'table')
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 
@@ -62,6 +63,11 @@ def add_parser(subparsers):
     _common(render)
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
+    render.add_argument('--scene-style', choices=SCENE_STYLES, default='random',
+                        help="'random': objects floating at random poses over a background "
+                             "among distractors; 'table': objects resting on a textured "
+                             'table among clutter, lit with shadows and highlights, seen '
+                             'from above like LM-O (default %(default)s)')
     _input_size_option(render)
     _backgrounds_option(render)
     add_inplane_argument(render)
@@ -312,9 +318,18 @@ def run_render(args):
     _check_input_size(args)
     camera = _cache_camera(args.dataset)
     models = load_bop_models(args.dataset, args.objects)
-    scenes = SyntheticScenes(models, camera, seed=args.seed,
-                             config=with_inplane_range(SynthConfig(), args),
-                             backgrounds=_photos(args))
+    if args.scene_style == 'table':
+        from bbpose_ros.core.synth.table_config import TableConfig
+        from bbpose_ros.core.synth.table_scenes import TableScenes
+        others = {name: model for name, model in load_bop_models(args.dataset).items()
+                  if name not in models}
+        scenes = TableScenes(models, camera, seed=args.seed,
+                             config=with_inplane_range(TableConfig(), args),
+                             distractor_models=others, backgrounds=_photos(args))
+    else:
+        scenes = SyntheticScenes(models, camera, seed=args.seed,
+                                 config=with_inplane_range(SynthConfig(), args),
+                                 backgrounds=_photos(args))
     build_cache(scenes, args.cache, args.scenes, args.input_size, workers=args.workers)
     return 0
 

@@ -40,7 +40,7 @@ class TableConfig:
     Layout: ``targets_per_image`` target objects and ``clutter_per_image`` clutter meshes
     (the other meshes and ``shape_count`` random shapes ``shape_size_range`` metres
     across) rest on the table, without touching, in a disc of radius
-    ``cluster_radius_range`` metres (grown where it is full), the targets placed first (the
+    ``cluster_radius_range`` metres (grown where it is full), in random order (the
     defaults give about LM-O's histogram of visible fractions); a mesh stands upright (its
     model z axis up, as the LM-O objects stand) with ``upright_probability``, else in one
     of its stable poses, turned about the vertical at random.
@@ -67,8 +67,8 @@ class TableConfig:
     """
 
     targets_per_image: tuple[int, int] = (6, 8)
-    clutter_per_image: tuple[int, int] = (6, 14)
-    cluster_radius_range: tuple[float, float] = (0.08, 0.2)
+    clutter_per_image: tuple[int, int] = (10, 18)
+    cluster_radius_range: tuple[float, float] = (0.12, 0.25)
     upright_probability: float = 0.8
     shape_count: int = 24
     shape_size_range: tuple[float, float] = (0.05, 0.3)

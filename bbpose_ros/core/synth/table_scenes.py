@@ -251,7 +251,7 @@ class TableScenes:
 
     def _layout(self, rng, radius):
         """
-        Targets and clutter resting on the table, footprints apart, targets first.
+        Targets and clutter resting on the table, footprints apart (targets listed first).
 
         A mesh that finds no free spot in ``_SPOT_ATTEMPTS`` tries, in a disc growing to
         twice ``radius``, is left out.
@@ -263,8 +263,8 @@ class TableScenes:
                 for i in rng.choice(len(self.target_names), count, replace=False)]
         clutter = int(rng.integers(config.clutter_per_image[0], config.clutter_per_image[1] + 1))
         keys += [self.clutter_keys[i] for i in rng.integers(len(self.clutter_keys), size=clutter)]
-        # Targets first (in random order), then clutter around and between them.
-        order = list(rng.permutation(count)) + list(count + rng.permutation(clutter))
+        # Targets and clutter mixed: clutter stands between the targets too.
+        order = rng.permutation(count + clutter)
         placed, polygons = {}, []
         for k in order:
             key = keys[k]
