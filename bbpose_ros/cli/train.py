@@ -43,6 +43,7 @@ from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.training.augment import AUGMENT_STYLES
 from bbpose_ros.core.training.device import DEVICES, training_device
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
@@ -136,8 +137,17 @@ def _crop_options(parser):
                         help='box jitter: per-side error / box size')
 
 
+def _augment_option(parser):
+    parser.add_argument('--augment', choices=AUGMENT_STYLES, default='basic',
+                        help="photometric augmentation of the training batches: 'basic' "
+                             "(brightness, contrast, colour gains, noise) or 'strong' (also "
+                             'blur, sharpening, saturation, grey, JPEG, as CosyPose and '
+                             'GDR-Net train; default %(default)s)')
+
+
 def _detector_options(parser):
     _backbone_options(parser)
+    _augment_option(parser)
     parser.add_argument('--train-crop', type=_int_tuple, default=None, metavar='W,H',
                         help='training window in input pixels, multiples of 16 '
                              '(default 192,160)')
@@ -221,6 +231,7 @@ def _qnet_options(parser):
                              'axis (an upright-object prior; default: all)')
     _extra_cache_option(parser, 'crop')
     _backbone_options(parser)
+    _augment_option(parser)
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
@@ -254,6 +265,8 @@ def _settings(settings, args):
     if getattr(args, 'trunk_lr_scale', None) is not None and args.trunk_lr_scale < 0:
         raise InputError(f'--trunk-lr-scale must be >= 0 (0 freezes the trunk), '
                          f'got {args.trunk_lr_scale}')
+    if getattr(args, 'augment', None) is not None:
+        settings.augment_style = args.augment
     for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop'):
         if getattr(args, name, None) is not None:
             setattr(settings, name, getattr(args, name))
@@ -439,6 +452,7 @@ def run_verifier(args):
 
 def _qnet_setup(args):
     from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.training.augment import AUGMENT_STYLES
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     if args.hypotheses < 1:
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
