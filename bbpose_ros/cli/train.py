@@ -452,7 +452,6 @@ def run_verifier(args):
 
 def _qnet_setup(args):
     from bbpose_ros.core.nets.qnet import QNetConfig
-from bbpose_ros.core.training.augment import AUGMENT_STYLES
     from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     if args.hypotheses < 1:
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')

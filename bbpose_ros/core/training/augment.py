@@ -73,8 +73,8 @@ def strong_photometric(images: torch.Tensor, generator: torch.Generator,
     Each image gets, each with its own probability: Gaussian blur (sigma up to 2 px) or
     sharpening, colour saturation (x0-2), contrast (x0.5-1.5), brightness (+-0.25), per
     channel gains (x0.8-1.2), Gaussian sensor noise (sigma up to 0.06), grey, JPEG
-    compression (quality 20-90), in that order. ``strength`` scales the probabilities (capped at 1) and the
-    sizes of the continuous perturbations.
+    compression (quality 20-90), in that order. ``strength`` scales the probabilities
+    (capped at 1) and the sizes of the continuous perturbations.
 
     Args:
         images: (N, 3, H, W) float RGB in 0..1 (changed in place and returned).
