@@ -41,14 +41,13 @@ import numpy as np
 from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.render import MeshRenderer, projected_box_uv, RenderMesh
+from bbpose_ros.core.render import MeshRenderer
 from bbpose_ros.core.render.gl_renderer import Draw
 from bbpose_ros.core.render.scene_light import Material, PointLight, SceneLights, \
     TexturedPlane
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.effects import apply_camera_effects, color_response
-from bbpose_ros.core.synth.scenes import SyntheticSample, SynthInstance
-from bbpose_ros.core.synth.shapes import random_shape
+from bbpose_ros.core.synth.scenes import scene_meshes, SyntheticSample, visible_instances
 from bbpose_ros.core.synth.stable_poses import load_stable_poses, resting_height, \
     StablePoses, yaw_rotation
 from bbpose_ros.core.synth.table_config import TableConfig
@@ -181,13 +180,8 @@ class TableScenes:
         self.config = config if config is not None else TableConfig()
         self.backgrounds = backgrounds
         self.target_names = list(models)
-        meshes = {f'target/{name}': RenderMesh.from_object_model(model)
-                  for name, model in models.items()}
-        meshes.update({f'distractor/{name}': RenderMesh.from_object_model(model)
-                       for name, model in distractor_models.items()})
-        shape_rng = np.random.default_rng([self.seed, 0])
-        meshes.update({f'shape/{i}': random_shape(shape_rng, self.config.shape_size_range)
-                       for i in range(self.config.shape_count)})
+        meshes = scene_meshes(models, distractor_models, self.seed,
+                              self.config.shape_size_range, self.config.shape_count)
         self.clutter_keys = [key for key in meshes if not key.startswith('target/')]
         self.hulls = {key: mesh.hull_points for key, mesh in meshes.items()}
         self.stable: dict[str, StablePoses] = {
@@ -233,20 +227,8 @@ class TableScenes:
         image[rendered.covered] = rendered.rgb[rendered.covered]
         image = color_response(rng, image, config.white_balance_range, config.gamma_range)
         image = apply_camera_effects(rng, image, config.effects)
-        instances = []
-        for i in targets:
-            mask = rendered.instance_ids == i + 1
-            visible = int(np.count_nonzero(mask))
-            if visible == 0:
-                continue
-            draw = draws[i]
-            instances.append(SynthInstance(
-                object_name=draw.mesh.split('/', 1)[1], rotation=draw.rotation,
-                translation=draw.translation,
-                box_uv=projected_box_uv(self.camera, self.hulls[draw.mesh], draw.rotation,
-                                        draw.translation),
-                visib_fract=min(visible / rendered.full_pixel_counts[i], 1.0), mask=mask))
-        return (SyntheticSample(image, self.camera, tuple(instances)),
+        instances = visible_instances(rendered, draws, targets, self.camera, self.hulls)
+        return (SyntheticSample(image, self.camera, instances),
                 TableLayout(tuple(kept), world_to_camera))
 
     def _layout(self, rng, radius):
