@@ -116,15 +116,8 @@ class SyntheticScenes:
                  seed: int = 0, config: SynthConfig | None = None,
                  distractor_models: Mapping[str, ObjectModel] | None = None,
                  backgrounds: PhotoBackgrounds | None = None) -> None:
-        if not models:
-            raise InputError('synthetic scenes need at least one target object model')
-        distractor_models = dict(distractor_models or {})
-        shared = sorted(set(models) & set(distractor_models))
-        if shared:
-            raise InputError(f'objects cannot be both targets and distractors: '
-                             f'{", ".join(shared)}')
-        if int(seed) != seed or seed < 0:
-            raise InputError(f'seed must be a non-negative integer, got {seed}')
+        distractor_models = checked_scene_inputs(models, distractor_models, seed,
+                                                 'synthetic scenes')
         self.camera = camera
         self.seed = int(seed)
         self.config = config if config is not None else SynthConfig()
@@ -237,6 +230,27 @@ class SyntheticScenes:
             if result is not None:
                 placed.append(result)
         return placed
+
+
+def checked_scene_inputs(models: Mapping[str, ObjectModel],
+                         distractor_models: Mapping[str, ObjectModel] | None, seed: int,
+                         what: str) -> dict[str, ObjectModel]:
+    """
+    Check the targets, distractors and seed of a scene source (``what``, for the errors).
+
+    Returns the distractors as a dict (empty for None); raises InputError without targets,
+    with an object both target and distractor, or with a seed that is not an int >= 0.
+    """
+    if not models:
+        raise InputError(f'{what} need at least one target object model')
+    distractor_models = dict(distractor_models or {})
+    shared = sorted(set(models) & set(distractor_models))
+    if shared:
+        raise InputError(f'objects cannot be both targets and distractors: '
+                         f'{", ".join(shared)}')
+    if int(seed) != seed or seed < 0:
+        raise InputError(f'seed must be a non-negative integer, got {seed}')
+    return distractor_models
 
 
 def scene_meshes(models: Mapping[str, ObjectModel], distractor_models: Mapping[str, ObjectModel],

@@ -47,7 +47,8 @@ from bbpose_ros.core.render.scene_light import Material, PointLight, SceneLights
     TexturedPlane
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.effects import apply_camera_effects, color_response
-from bbpose_ros.core.synth.scenes import scene_meshes, SyntheticSample, visible_instances
+from bbpose_ros.core.synth.scenes import checked_scene_inputs, scene_meshes, \
+    SyntheticSample, visible_instances
 from bbpose_ros.core.synth.stable_poses import load_stable_poses, resting_height, \
     StablePoses, yaw_rotation
 from bbpose_ros.core.synth.table_config import TableConfig
@@ -167,15 +168,8 @@ class TableScenes:
                  distractor_models: Mapping[str, ObjectModel] | None = None,
                  backgrounds: PhotoBackgrounds | None = None,
                  stable_pose_cache: Path | str | None = None) -> None:
-        if not models:
-            raise InputError('table scenes need at least one target object model')
-        distractor_models = dict(distractor_models or {})
-        shared = sorted(set(models) & set(distractor_models))
-        if shared:
-            raise InputError(f'objects cannot be both targets and distractors: '
-                             f'{", ".join(shared)}')
-        if int(seed) != seed or seed < 0:
-            raise InputError(f'seed must be a non-negative integer, got {seed}')
+        distractor_models = checked_scene_inputs(models, distractor_models, seed,
+                                                 'table scenes')
         self.camera, self.seed = camera, int(seed)
         self.config = config if config is not None else TableConfig()
         self.backgrounds = backgrounds
