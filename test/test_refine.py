@@ -275,8 +275,7 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
     assert np.mean(near) >= 0.5
 
 
-def test_a_refinement_that_lowers_the_score_gives_the_start_back(viewpoint_models,
-                                                                  lmo_frames):
+def test_a_refinement_that_lowers_the_score_gives_the_start_back(viewpoint_models, lmo_frames):
     models, _ = viewpoint_models
     frame = lmo_frames[3]
     bins = color_bins(frame.load_image())

@@ -45,10 +45,12 @@ from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.training.augment import AUGMENT_STYLES
 from bbpose_ros.core.training.device import DEVICES, training_device
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
 VERIFIER_CHANNELS = (12, 24, 48, 48)
+SCENE_STYLES = ('random', 'table')
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 
@@ -64,6 +66,11 @@ def add_parser(subparsers):
     _common(render)
     render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
+    render.add_argument('--scene-style', choices=SCENE_STYLES, default='random',
+                        help="'random': objects floating at random poses over a background "
+                             "among distractors; 'table': objects resting on a textured "
+                             'table among clutter, lit with shadows and highlights, seen '
+                             'from above like LM-O (default %(default)s)')
     _input_size_option(render)
     _backgrounds_option(render)
     add_inplane_argument(render)
@@ -144,8 +151,17 @@ def _crop_options(parser):
                         help='box jitter: per-side error / box size')
 
 
+def _augment_option(parser):
+    parser.add_argument('--augment', choices=AUGMENT_STYLES, default='basic',
+                        help="photometric augmentation of the training batches: 'basic' "
+                             "(brightness, contrast, colour gains, noise) or 'strong' (also "
+                             'blur, sharpening, saturation, grey, JPEG, as CosyPose and '
+                             'GDR-Net train; default %(default)s)')
+
+
 def _detector_options(parser):
     _backbone_options(parser)
+    _augment_option(parser)
     parser.add_argument('--train-crop', type=_int_tuple, default=None, metavar='W,H',
                         help='training window in input pixels, multiples of 16 '
                              '(default 192,160)')
@@ -229,6 +245,7 @@ def _qnet_options(parser):
                              'axis (an upright-object prior; default: all)')
     _extra_cache_option(parser, 'crop')
     _backbone_options(parser)
+    _augment_option(parser)
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
@@ -283,6 +300,8 @@ def _settings(settings, args):
     if getattr(args, 'trunk_lr_scale', None) is not None and args.trunk_lr_scale < 0:
         raise InputError(f'--trunk-lr-scale must be >= 0 (0 freezes the trunk), '
                          f'got {args.trunk_lr_scale}')
+    if getattr(args, 'augment', None) is not None:
+        settings.augment_style = args.augment
     for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop', 'coordinate_weight',
                  'frozen_blocks'):
         if getattr(args, name, None) is not None:
@@ -348,9 +367,18 @@ def run_render(args):
     _check_input_size(args)
     camera = _cache_camera(args.dataset)
     models = load_bop_models(args.dataset, args.objects)
-    scenes = SyntheticScenes(models, camera, seed=args.seed,
-                             config=with_inplane_range(SynthConfig(), args),
-                             backgrounds=_photos(args))
+    if args.scene_style == 'table':
+        from bbpose_ros.core.synth.table_config import TableConfig
+        from bbpose_ros.core.synth.table_scenes import TableScenes
+        others = {name: model for name, model in load_bop_models(args.dataset).items()
+                  if name not in models}
+        scenes = TableScenes(models, camera, seed=args.seed,
+                             config=with_inplane_range(TableConfig(), args),
+                             distractor_models=others, backgrounds=_photos(args))
+    else:
+        scenes = SyntheticScenes(models, camera, seed=args.seed,
+                                 config=with_inplane_range(SynthConfig(), args),
+                                 backgrounds=_photos(args))
     build_cache(scenes, args.cache, args.scenes, args.input_size, workers=args.workers)
     return 0
 

@@ -21,6 +21,7 @@ Pixel coordinates are continuous and follow ``CameraIntrinsics``: the centre of 
 """
 
 import numpy as np
+import numpy.typing as npt
 
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
@@ -47,3 +48,9 @@ def opengl_projection(camera: CameraIntrinsics, near: float, far: float,
         [0.0, 0.0, (far + near) / (far - near), -2.0 * far * near / (far - near)],
         [0.0, 0.0, 1.0, 0.0],
     ])
+
+
+def gl_matrix(matrix: npt.ArrayLike) -> bytes:
+    """Return the bytes of a square matrix in GL's column-major float32 layout."""
+    return np.ascontiguousarray(np.asarray(matrix, dtype=np.float32).T).tobytes()
+

@@ -36,8 +36,9 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render import shaders
-from bbpose_ros.core.render.clip_space import opengl_projection
+from bbpose_ros.core.render.clip_space import gl_matrix, opengl_projection
 from bbpose_ros.core.render.mesh import RenderMesh
+from bbpose_ros.core.render.scene_light import Material, SceneLights, TexturedPlane
 
 # The instance-id target is 8 bits wide and 0 is the background.
 MAX_DRAWS = 255
@@ -108,6 +109,19 @@ class RenderResult:
     model_coordinates: np.ndarray | None = None
 
 
+@dataclass(frozen=True, kw_only=True)
+class LitRenderResult(RenderResult):
+    """
+    What ``MeshRenderer.render_lit`` produced: a ``RenderResult`` plus the drawn pixels.
+
+    Attributes:
+        covered: (H, W) bool pixels a mesh or a plane covers (the rest is empty).
+
+    """
+
+    covered: np.ndarray
+
+
 class MeshRenderer:
     """
     Render coloured meshes with a shared depth buffer, instance ids and full silhouettes.
@@ -157,6 +171,41 @@ class MeshRenderer:
         frame (``CameraIntrinsics.cropped``). ``coordinates`` also reads back the model
         coordinates of every pixel. Returns a ``RenderResult``.
         """
+        camera = self._checked_camera(draws, camera)
+        gl = self._context()
+        rgb, ids, model_coordinates = gl.render_shaded(draws, lighting, camera, coordinates)
+        return RenderResult(rgb, ids, *self._full_masks(gl, draws, ids, full_mask_indices,
+                                                        camera), model_coordinates)
+
+    def render_lit(self, draws: Sequence[Draw], lights: SceneLights,
+                   materials: Sequence[Material] | None = None,
+                   planes: Sequence[TexturedPlane] = (),
+                   full_mask_indices: Iterable[int] = (),
+                   camera: CameraIntrinsics | None = None) -> LitRenderResult:
+        """
+        Draw ``draws`` and textured ``planes`` under point lights with shadows and highlights.
+
+        Like ``render`` (same instance ids, full masks and ``camera``), but lit by a
+        ``SceneLights`` (ambient, up to three shadow-casting point lights, Blinn-Phong
+        highlights with each draw's ``Material``; default matte) and with the planes (a
+        table, walls: id 0) in the depth buffer. Returns a ``LitRenderResult``.
+        """
+        from bbpose_ros.core.render.lit_pass import LitPass
+        camera = self._checked_camera(draws, camera)
+        materials = [Material()] * len(draws) if materials is None else list(materials)
+        if len(materials) != len(draws):
+            raise InputError(f'{len(materials)} materials for {len(draws)} draws')
+        gl = self._context()
+        if gl.lit_pass is None:
+            gl.lit_pass = LitPass(gl.ctx, gl.buffers, gl.frame)
+        rgba, ids = gl.lit_pass.render(draws, materials, lights, planes, opengl_projection(
+            camera, self.near, self.far))
+        return LitRenderResult(np.ascontiguousarray(rgba[..., :3]), ids,
+                               *self._full_masks(gl, draws, ids, full_mask_indices, camera),
+                               covered=rgba[..., 3] > 0)
+
+    def _checked_camera(self, draws, camera):
+        """Return the camera of one image (default the renderer's), checked with the draws."""
         camera = self.camera if camera is None else camera
         if (camera.width, camera.height) != (self.camera.width, self.camera.height):
             raise InputError(f'render camera is {camera.width}x{camera.height}, the renderer '
@@ -166,8 +215,10 @@ class MeshRenderer:
         unknown = sorted({draw.mesh for draw in draws} - set(self.meshes))
         if unknown:
             raise InputError(f'unknown mesh name(s): {", ".join(unknown)}')
-        gl = self._context()
-        rgb, ids, model_coordinates = gl.render_shaded(draws, lighting, camera, coordinates)
+        return camera
+
+    def _full_masks(self, gl, draws, ids, full_mask_indices, camera):
+        """Full silhouettes {index: (H, W) bool} and pixel counts of the chosen draws."""
         boxes = [projected_box_uv(camera, self.meshes[draw.mesh].hull_points,
                                   draw.rotation, draw.translation) for draw in draws]
         full_masks, counts = {}, {}
@@ -178,7 +229,7 @@ class MeshRenderer:
             else:
                 full_masks[index], counts[index] = gl.render_silhouette(
                     draws[index], boxes[index], camera)
-        return RenderResult(rgb, ids, full_masks, counts, model_coordinates)
+        return full_masks, counts
 
     def _is_unoccluded_and_inside(self, index, boxes):
         """Tell whether no other draw's box overlaps draw ``index``'s box, inside the image."""
@@ -221,11 +272,14 @@ class _GlState:
                                   fragment_shader=shaders.SHADED_FRAGMENT)
         self.silhouette = ctx.program(vertex_shader=shaders.SILHOUETTE_VERTEX,
                                       fragment_shader=shaders.SILHOUETTE_FRAGMENT)
-        self.vaos = {}
+        self.vaos, self.buffers = {}, {}
+        # The lit pass (``render_lit``) is made on first use.
+        self.lit_pass = None
         for name, mesh in meshes.items():
             vbo = ctx.buffer(np.hstack([mesh.vertices, mesh.normals, mesh.colors])
                              .astype('f4').tobytes())
             ibo = ctx.buffer(mesh.faces.astype('u4').tobytes())
+            self.buffers[name] = (vbo, ibo)
             self.vaos[name] = (
                 ctx.vertex_array(self.shaded, [(vbo, '3f 3f 3f', 'in_position', 'in_normal',
                                                 'in_color')], ibo, index_element_size=4),
@@ -256,7 +310,7 @@ class _GlState:
         coordinates (H, W, 3) float32 (else None).
         """
         ctx, program = self.ctx, self.shaded
-        program['u_projection'].write(_gl_matrix(opengl_projection(camera, self.near,
+        program['u_projection'].write(gl_matrix(opengl_projection(camera, self.near,
                                                                    self.far)))
         self.frame.use()
         ctx.enable(moderngl.DEPTH_TEST)
@@ -267,7 +321,7 @@ class _GlState:
         program['u_ambient'].value = float(lighting.ambient)
         program['u_diffuse'].value = float(lighting.diffuse)
         for index, draw in enumerate(draws):
-            program['u_rotation'].write(_gl_matrix(draw.rotation))
+            program['u_rotation'].write(gl_matrix(draw.rotation))
             program['u_translation'].value = tuple(float(x) for x in draw.translation)
             program['u_color_gain'].value = tuple(float(x) for x in draw.color_gain)
             program['u_instance_id'].value = float(index + 1)
@@ -293,9 +347,9 @@ class _GlState:
         width = min(math.floor(box_uv[2]) + 2 - col0, self.window_size[0])
         height = min(math.floor(box_uv[3]) + 2 - row0, self.window_size[1])
         program = self.silhouette
-        program['u_projection'].write(_gl_matrix(opengl_projection(
+        program['u_projection'].write(gl_matrix(opengl_projection(
             camera, self.near, self.far, (col0, row0), (width, height))))
-        program['u_rotation'].write(_gl_matrix(draw.rotation))
+        program['u_rotation'].write(gl_matrix(draw.rotation))
         program['u_translation'].value = tuple(float(x) for x in draw.translation)
         self.window.use()
         self.window.viewport = (0, 0, width, height)
@@ -312,8 +366,3 @@ class _GlState:
         if c0 < c1 and r0 < r1:
             mask[r0:r1, c0:c1] = local[r0 - row0:r1 - row0, c0 - col0:c1 - col0]
         return mask, int(np.count_nonzero(local))
-
-
-def _gl_matrix(matrix):
-    """Bytes of a square matrix in GL's column-major float32 layout."""
-    return np.ascontiguousarray(np.asarray(matrix, dtype=np.float32).T).tobytes()

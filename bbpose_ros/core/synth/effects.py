@@ -63,3 +63,20 @@ def apply_camera_effects(rng: np.random.Generator, image: np.ndarray,
         image = jpeg_roundtrip(image, rng.integers(config.jpeg_quality_range[0],
                                                    config.jpeg_quality_range[1] + 1))
     return image
+
+
+def color_response(rng: np.random.Generator, image: np.ndarray,
+                   white_balance_range: tuple[float, float],
+                   gamma_range: tuple[float, float]) -> np.ndarray:
+    """
+    Apply a camera's colour response to an (H, W, 3) uint8 RGB image: white balance, gamma.
+
+    Each channel is scaled by a gain drawn from ``white_balance_range`` (a colour cast), then
+    the 0..1 intensities are raised to a gamma drawn from ``gamma_range`` (> 1 darkens the
+    mid-tones, < 1 lifts them; the extremes stay).
+    """
+    gains = rng.uniform(*white_balance_range, 3).astype(np.float32)
+    gamma = float(rng.uniform(*gamma_range))
+    lut = np.clip((np.arange(256, dtype=np.float32)[:, None] / 255.0 * gains), 0.0, 1.0)
+    lut = np.round(255.0 * lut ** gamma).astype(np.uint8)
+    return np.stack([lut[image[..., c], c] for c in range(3)], axis=-1)

@@ -21,7 +21,7 @@ Sample ``index`` of seed ``seed`` is always the same image: its random generator
 with (seed, index) only, so samples can be drawn in any order, by any number of workers.
 """
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +30,7 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
-from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
+from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh, RenderResult
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
 from bbpose_ros.core.synth.config import SynthConfig
 from bbpose_ros.core.synth.effects import apply_camera_effects
@@ -116,27 +116,15 @@ class SyntheticScenes:
                  seed: int = 0, config: SynthConfig | None = None,
                  distractor_models: Mapping[str, ObjectModel] | None = None,
                  backgrounds: PhotoBackgrounds | None = None) -> None:
-        if not models:
-            raise InputError('synthetic scenes need at least one target object model')
-        distractor_models = dict(distractor_models or {})
-        shared = sorted(set(models) & set(distractor_models))
-        if shared:
-            raise InputError(f'objects cannot be both targets and distractors: '
-                             f'{", ".join(shared)}')
-        if int(seed) != seed or seed < 0:
-            raise InputError(f'seed must be a non-negative integer, got {seed}')
+        distractor_models = checked_scene_inputs(models, distractor_models, seed,
+                                                 'synthetic scenes')
         self.camera = camera
         self.seed = int(seed)
         self.config = config if config is not None else SynthConfig()
         self.backgrounds = backgrounds
         self.target_names = list(models)
-        meshes = {f'target/{name}': RenderMesh.from_object_model(model)
-                  for name, model in models.items()}
-        meshes.update({f'distractor/{name}': RenderMesh.from_object_model(model)
-                       for name, model in distractor_models.items()})
-        shape_rng = np.random.default_rng([self.seed, 0])
-        meshes.update({f'shape/{i}': random_shape(shape_rng, self.config.shape_size_range)
-                       for i in range(self.config.shape_count)})
+        meshes = scene_meshes(models, distractor_models, self.seed,
+                              self.config.shape_size_range, self.config.shape_count)
         self.distractor_keys = [key for key in meshes if not key.startswith('target/')]
         self.radius = {key: float(np.linalg.norm(mesh.hull_points, axis=1).max())
                        for key, mesh in meshes.items()}
@@ -169,17 +157,8 @@ class SyntheticScenes:
         covered = rendered.instance_ids > 0
         image[covered] = rendered.rgb[covered]
         image = apply_camera_effects(rng, image, config)
-        instances = []
-        for i, placed in enumerate(targets):
-            mask = rendered.instance_ids == i + 1
-            visible = int(np.count_nonzero(mask))
-            if visible == 0:
-                continue
-            instances.append(SynthInstance(
-                object_name=placed.key.split('/', 1)[1], rotation=placed.rotation,
-                translation=placed.translation, box_uv=self._box(placed),
-                visib_fract=min(visible / rendered.full_pixel_counts[i], 1.0), mask=mask))
-        return SyntheticSample(image, self.camera, tuple(instances))
+        return SyntheticSample(image, self.camera, visible_instances(
+            rendered, draws, range(len(targets)), self.camera, self.hulls))
 
     def _box(self, placed):
         return projected_box_uv(self.camera, self.hulls[placed.key], placed.rotation,
@@ -251,3 +230,69 @@ class SyntheticScenes:
             if result is not None:
                 placed.append(result)
         return placed
+
+
+def checked_scene_inputs(models: Mapping[str, ObjectModel],
+                         distractor_models: Mapping[str, ObjectModel] | None, seed: int,
+                         what: str) -> dict[str, ObjectModel]:
+    """
+    Check the targets, distractors and seed of a scene source (``what``, for the errors).
+
+    Returns the distractors as a dict (empty for None); raises InputError without targets,
+    with an object both target and distractor, or with a seed that is not an int >= 0.
+    """
+    if not models:
+        raise InputError(f'{what} need at least one target object model')
+    distractor_models = dict(distractor_models or {})
+    shared = sorted(set(models) & set(distractor_models))
+    if shared:
+        raise InputError(f'objects cannot be both targets and distractors: '
+                         f'{", ".join(shared)}')
+    if int(seed) != seed or seed < 0:
+        raise InputError(f'seed must be a non-negative integer, got {seed}')
+    return distractor_models
+
+
+def scene_meshes(models: Mapping[str, ObjectModel], distractor_models: Mapping[str, ObjectModel],
+                 seed: int, shape_size_range: tuple[float, float],
+                 shape_count: int) -> dict[str, RenderMesh]:
+    """
+    Make the meshes of a scene source, by renderer key.
+
+    'target/NAME' for ``models``, 'distractor/NAME' for ``distractor_models`` and 'shape/i'
+    for ``shape_count`` random shapes ``shape_size_range`` metres across, drawn from (seed,
+    0) so that every process of one seed makes the same shapes.
+    """
+    meshes = {f'target/{name}': RenderMesh.from_object_model(model)
+              for name, model in models.items()}
+    meshes.update({f'distractor/{name}': RenderMesh.from_object_model(model)
+                   for name, model in distractor_models.items()})
+    shape_rng = np.random.default_rng([seed, 0])
+    meshes.update({f'shape/{i}': random_shape(shape_rng, shape_size_range)
+                   for i in range(shape_count)})
+    return meshes
+
+
+def visible_instances(rendered: RenderResult, draws: Sequence[Draw], targets: Iterable[int],
+                      camera: CameraIntrinsics,
+                      hulls: Mapping[str, np.ndarray]) -> tuple[SynthInstance, ...]:
+    """
+    Collect the ground truth of the target draws ``targets`` (indices) that show a pixel.
+
+    ``rendered`` is the image's render (its full pixel counts include every target);
+    a target draw's mesh key is 'target/NAME'; ``hulls`` {key: (N, 3) hull points} give the
+    amodal boxes.
+    """
+    instances = []
+    for i in targets:
+        mask = rendered.instance_ids == i + 1
+        visible = int(np.count_nonzero(mask))
+        if visible == 0:
+            continue
+        draw = draws[i]
+        instances.append(SynthInstance(
+            object_name=draw.mesh.split('/', 1)[1], rotation=draw.rotation,
+            translation=draw.translation,
+            box_uv=projected_box_uv(camera, hulls[draw.mesh], draw.rotation, draw.translation),
+            visib_fract=min(visible / rendered.full_pixel_counts[i], 1.0), mask=mask))
+    return tuple(instances)

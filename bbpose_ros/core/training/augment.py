@@ -14,7 +14,10 @@
 
 """Online photometric augmentation of training image batches."""
 
+import numpy as np
 import torch
+
+from bbpose_ros.core.synth.effects import jpeg_roundtrip
 
 
 def photometric(images: torch.Tensor, generator: torch.Generator,
@@ -41,3 +44,98 @@ def photometric(images: torch.Tensor, generator: torch.Generator,
     sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.03 * strength
     images.add_(torch.randn(images.shape, generator=generator) * sigma)
     return images.clamp_(0.0, 1.0)
+
+
+AUGMENT_STYLES = ('basic', 'strong')
+
+
+def augment_batch(images: torch.Tensor, generator: torch.Generator, strength: float,
+                  style: str = 'basic') -> torch.Tensor:
+    """
+    Augment a float batch (N, 3, H, W) in 0..1 with ``photometric`` or ``strong_photometric``.
+
+    ``style`` is one of AUGMENT_STYLES; ``strength`` 0 leaves the images as they are.
+    """
+    if style not in AUGMENT_STYLES:
+        raise ValueError(f'augmentation style must be one of {AUGMENT_STYLES}, got {style!r}')
+    if strength <= 0:
+        return images
+    if style == 'strong':
+        return strong_photometric(images, generator, strength)
+    return photometric(images, generator, strength)
+
+
+def strong_photometric(images: torch.Tensor, generator: torch.Generator,
+                       strength: float = 1.0) -> torch.Tensor:
+    """
+    Strong photometric augmentation in the manner of CosyPose and GDR-Net.
+
+    Each image gets, each with its own probability: Gaussian blur (sigma up to 2 px) or
+    sharpening, colour saturation (x0-2), contrast (x0.5-1.5), brightness (+-0.25), per
+    channel gains (x0.8-1.2), Gaussian sensor noise (sigma up to 0.06), grey, JPEG
+    compression (quality 20-90), in that order. ``strength`` scales the probabilities
+    (capped at 1) and the sizes of the continuous perturbations.
+
+    Args:
+        images: (N, 3, H, W) float RGB in 0..1 (changed in place and returned).
+        generator: torch.Generator of the draws.
+        strength: > 0.
+
+    """
+    n = len(images)
+
+    def chosen(probability):
+        return torch.rand(n, generator=generator) < min(probability * strength, 1.0)
+
+    def uniform(low, high):
+        mid, half = (low + high) / 2, (high - low) / 2 * strength
+        return mid + (torch.rand(n, generator=generator) * 2 - 1) * half
+
+    blur, sharpen = chosen(0.4), chosen(0.3)
+    sigmas, amounts = uniform(0.3, 2.0).clamp(min=0.1), uniform(0.0, 1.5).clamp(min=0.0)
+    for k in range(n):
+        if blur[k]:
+            images[k] = _gaussian_blur(images[k], float(sigmas[k]))
+        elif sharpen[k]:
+            smooth = _gaussian_blur(images[k], 1.0)
+            images[k] += float(amounts[k]) * (images[k] - smooth)
+    gray = images.mean(dim=1, keepdim=True)
+    saturation = torch.where(chosen(0.5), uniform(0.0, 2.0).clamp(min=0.0), torch.ones(n))
+    images.sub_(gray).mul_(saturation.view(n, 1, 1, 1)).add_(gray)
+    mean = images.mean(dim=(1, 2, 3), keepdim=True)
+    contrast = torch.where(chosen(0.5), uniform(0.5, 1.5), torch.ones(n)).view(n, 1, 1, 1)
+    brightness = torch.where(chosen(0.5), uniform(-0.25, 0.25), torch.zeros(n)).view(n, 1, 1, 1)
+    gains = 1 + (torch.rand((n, 3, 1, 1), generator=generator) * 2 - 1) * 0.2 * strength
+    images.sub_(mean).mul_(contrast).add_(mean).mul_(gains).add_(brightness)
+    noisy = chosen(0.5).view(n, 1, 1, 1)
+    sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.06 * strength * noisy
+    images.add_(torch.randn(images.shape, generator=generator) * sigma)
+    images.copy_(torch.where(chosen(0.1).view(n, 1, 1, 1), images.mean(dim=1, keepdim=True),
+                             images))
+    images.clamp_(0.0, 1.0)
+    jpeg, qualities = chosen(0.3), uniform(20, 90).clamp(5, 100)
+    for k in range(n):
+        if jpeg[k]:
+            images[k] = _jpeg(images[k], int(qualities[k]))
+    return images
+
+
+def _gaussian_blur(image, sigma):
+    """Blur a (3, H, W) float image with a separable Gaussian of ``sigma`` pixels."""
+    radius = max(1, int(3 * sigma + 0.5))
+    x = torch.arange(-radius, radius + 1, dtype=image.dtype)
+    kernel = torch.exp(-x ** 2 / (2 * sigma ** 2))
+    kernel /= kernel.sum()
+    padded = torch.nn.functional.pad(image[None], (radius, radius, radius, radius),
+                                     mode='replicate')
+    rows = torch.nn.functional.conv2d(padded, kernel.view(1, 1, 1, -1).expand(3, 1, 1, -1),
+                                      groups=3)
+    return torch.nn.functional.conv2d(rows, kernel.view(1, 1, -1, 1).expand(3, 1, -1, 1),
+                                      groups=3)[0]
+
+
+def _jpeg(image, quality):
+    """Encode a (3, H, W) float RGB image as JPEG at ``quality`` and decode it (0..1)."""
+    pixels = (image.permute(1, 2, 0).contiguous().numpy() * 255 + 0.5).astype(np.uint8)
+    return torch.from_numpy(jpeg_roundtrip(pixels, quality)).permute(2, 0, 1).to(
+        image.dtype) / 255.0

@@ -52,6 +52,7 @@ from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropScenes
     from bbpose_ros.core.synth.scenes import SyntheticScenes
+    from bbpose_ros.core.synth.table_scenes import TableScenes
 
 SHARD_SIZE = 250
 CROP_SIZE = 128
@@ -118,13 +119,14 @@ def _render(index):
                        _WORKER['input_size'])
 
 
-def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
+def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, count: int,
                 input_size: Sequence[int], workers: int = 2, progress: bool = True) -> None:
     """
     Render ``count`` scenes of a SyntheticScenes into ``cache_dir`` (resumable).
 
     Args:
-        scenes: SyntheticScenes (targets = the cache's objects).
+        scenes: SyntheticScenes or TableScenes (targets = the cache's objects); a table
+            cache's meta.json says ``"scene_style": "table"``.
         cache_dir: output folder (created).
         count: number of scenes; rounded up to whole shards.
         input_size: (width, height) of the stored detector images.
@@ -132,6 +134,7 @@ def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
         progress: show a tqdm bar.
 
     """
+    from bbpose_ros.core.synth.table_scenes import TableScenes
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
     meta = {'objects': scenes.target_names, 'seed': scenes.seed,
@@ -140,6 +143,8 @@ def build_cache(scenes: SyntheticScenes, cache_dir: Path | str, count: int,
             'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
+    if isinstance(scenes, TableScenes):     # caches of the other style keep their meta
+        meta['scene_style'] = 'table'
     render_shards(cache_dir, meta, whole_shards(count, SHARD_SIZE), SHARD_SIZE, _init_worker,
                   (scenes, tuple(input_size)), _render, write_scene_shard, 'scene', workers,
                   progress)

@@ -38,7 +38,7 @@ from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
-from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.device import TrainingDevice
 
@@ -54,6 +54,7 @@ class DetectorTrainSettings:
     box_weight: float = 1.0
     val_fraction: float = 0.05
     augment: float = 1.0
+    augment_style: str = 'basic'
     train_crop: tuple[int, int] = (192, 160)
     trunk_lr_scale: float = 0.1
 
@@ -112,8 +113,7 @@ class DetectorBatches:
         images = np.stack([self.cache.images[s, y:y + height, x:x + width]
                            for s, (x, y) in zip(scenes, offsets)])
         images = images_to_input(torch.from_numpy(images))
-        if augment > 0:
-            images = photometric(images, self.generator, augment)
+        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
         targets = [self._targets(self.by_scene[s], offset, width, height)
                    for s, offset in zip(scenes, offsets)]
         heat, sides, weight = (torch.from_numpy(np.stack(t)) for t in zip(*targets))

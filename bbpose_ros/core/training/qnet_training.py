@@ -46,7 +46,7 @@ from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
 from bbpose_ros.core.synth.placement import viewpoint_angles
-from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.device import TrainingDevice
 
 if TYPE_CHECKING:
@@ -66,6 +66,7 @@ class QNetTrainSettings:
     box_sigma: float = 0.05
     val_fraction: float = 0.05
     augment: float = 1.0
+    augment_style: str = 'basic'
     sign_invariant: bool = False
     max_inplane_deg: float | None = None
     trunk_lr_scale: float = 0.1
@@ -115,8 +116,7 @@ class QNetBatches:
         cache, config = self.cache, self.config
         crops, boxes = cache.input_crops(ids, rng, box_sigma, config.crop_size, config.context)
         images = images_to_input(torch.from_numpy(crops))
-        if augment > 0:
-            images = photometric(images, self.generator, augment)
+        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
         rotations = cache.rotation[ids].astype(float)
         if config.rotation_target == 'allocentric':
             rotations = egocentric_to_allocentric(rotations,

@@ -1,0 +1,339 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Table-top training scenes like LM-O's: objects resting among clutter, lit with shadows.
+
+As in BOP's physically based training images (objects dropped onto a plane in a room), the
+meshes rest on a textured table in stable poses, close together so that they hide each
+other, among clutter (other meshes, random shapes), in front of a textured wall, lit by
+ambient light and point lights that cast shadows and make highlights; a camera looks down
+at them from LM-O-like distances and elevations (``TableConfig``), then the image gets a
+camera's colour response, blur, noise and JPEG artefacts.
+
+Layout (world frame: the table is z = 0, z up, the cluster centred on the origin): each
+mesh rests on the table (its lowest hull point at z = 0) and the meshes' footprints (their
+hulls projected on the table) do not overlap, so no two meshes intersect. Ground truth is
+exact, as in ``SyntheticScenes``: amodal boxes projected from the hulls, visible fractions
+from the rendered instance ids over the full silhouettes.
+
+Sample ``index`` of seed ``seed`` depends on (seed, index) only.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bbpose_ros.core.data.models import ObjectModel
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.render import MeshRenderer
+from bbpose_ros.core.render.gl_renderer import Draw
+from bbpose_ros.core.render.scene_light import Material, PointLight, SceneLights, \
+    TexturedPlane
+from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
+from bbpose_ros.core.synth.effects import apply_camera_effects, color_response
+from bbpose_ros.core.synth.scenes import checked_scene_inputs, scene_meshes, \
+    SyntheticSample, visible_instances
+from bbpose_ros.core.synth.stable_poses import load_stable_poses, resting_height, \
+    StablePoses, yaw_rotation
+from bbpose_ros.core.synth.table_config import TableConfig
+
+# Attempts at a free spot on the table per mesh before it is left out.
+_SPOT_ATTEMPTS = 40
+# Smallest gap between two footprints on the table (metres).
+_FOOTPRINT_GAP = 0.002
+# Closest any mesh point may come to the camera plane (metres).
+_MIN_DEPTH = 0.1
+# Side of the table and wall textures (pixels).
+_TEXTURE_SIZE = 512
+# Half extents of a wall (metres): wide and high enough to fill the view behind the table.
+_WALL_HALF_SIZE = (2.5, 1.5)
+
+
+@dataclass(frozen=True)
+class PlacedMesh:
+    """
+    A mesh resting on the table.
+
+    Attributes:
+        key: its renderer key ('target/ape', 'distractor/can', 'shape/3').
+        rotation: (3, 3) model-to-world rotation.
+        translation: (3,) model origin in the world frame, metres (z lifts it onto the table).
+
+    """
+
+    key: str
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
+@dataclass(frozen=True)
+class TableLayout:
+    """
+    The world of one table scene (world frame: table z = 0, z up).
+
+    Attributes:
+        meshes: tuple of ``PlacedMesh``, the targets first.
+        world_to_camera: (4, 4) rigid map of world points to the camera frame (metres).
+
+    """
+
+    meshes: tuple[PlacedMesh, ...]
+    world_to_camera: np.ndarray
+
+
+def look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """
+    (4, 4) world-to-camera map of an OpenCV camera at ``position`` looking at ``target``.
+
+    Unrolled, the camera's x axis is horizontal (the world z axis points up in the image);
+    then it turns by ``roll`` radians about its optical axis. The camera must not look
+    straight down or up.
+    """
+    forward = target - position
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    axes = np.stack([right, np.cross(forward, right), forward])
+    cos, sin = np.cos(roll), np.sin(roll)
+    axes = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]]) @ axes
+    transform = np.eye(4)
+    transform[:3, :3] = axes
+    transform[:3, 3] = -axes @ position
+    return transform
+
+
+def footprint(points_xy: np.ndarray) -> np.ndarray:
+    """(K, 2) convex polygon (counter-clockwise) of (N, 2) points on the table, metres."""
+    hull = cv2.convexHull(points_xy.astype(np.float32), clockwise=False)
+    return hull.reshape(-1, 2).astype(float)
+
+
+def polygons_overlap(first: np.ndarray, second: np.ndarray, gap: float = 0.0) -> bool:
+    """
+    Tell whether two convex polygons (K, 2) come closer than ``gap`` along every axis.
+
+    The separating-axis test over both polygons' edge normals: convex polygons that are
+    ``gap`` apart along some edge normal are disjoint.
+    """
+    for polygon in (first, second):
+        edges = np.roll(polygon, -1, axis=0) - polygon
+        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+        length = np.linalg.norm(normals, axis=1)
+        normals = normals[length > 1e-12] / length[length > 1e-12, None]
+        a, b = first @ normals.T, second @ normals.T
+        if np.any((a.min(axis=0) > b.max(axis=0) + gap) |
+                  (b.min(axis=0) > a.max(axis=0) + gap)):
+            return False
+    return True
+
+
+class TableScenes:
+    """
+    A deterministic, endless source of table-top scenes (``sample(index)``).
+
+    The renderer is made lazily in the process that draws the first sample, so instances
+    may be passed to worker processes.
+
+    Args:
+        models: {name: ObjectModel} targets (labelled).
+        camera: CameraIntrinsics of the images.
+        seed: non-negative int; sample ``index`` depends on (seed, index) only.
+        config: TableConfig (default settings when None).
+        distractor_models: {name: ObjectModel} other meshes, unlabelled clutter.
+        backgrounds: PhotoBackgrounds for the table, wall and background textures (None:
+            procedural textures only).
+        stable_pose_cache: folder of the cached stable poses (default
+            ``stable_poses.default_cache_dir()``).
+
+    """
+
+    def __init__(self, models: Mapping[str, ObjectModel], camera: CameraIntrinsics,
+                 seed: int = 0, config: TableConfig | None = None,
+                 distractor_models: Mapping[str, ObjectModel] | None = None,
+                 backgrounds: PhotoBackgrounds | None = None,
+                 stable_pose_cache: Path | str | None = None) -> None:
+        distractor_models = checked_scene_inputs(models, distractor_models, seed,
+                                                 'table scenes')
+        self.camera, self.seed = camera, int(seed)
+        self.config = config if config is not None else TableConfig()
+        self.backgrounds = backgrounds
+        self.target_names = list(models)
+        meshes = scene_meshes(models, distractor_models, self.seed,
+                              self.config.shape_size_range, self.config.shape_count)
+        self.clutter_keys = [key for key in meshes if not key.startswith('target/')]
+        self.hulls = {key: mesh.hull_points for key, mesh in meshes.items()}
+        self.stable: dict[str, StablePoses] = {
+            key: load_stable_poses(key.replace('/', '_'), mesh.vertices, mesh.faces,
+                                   stable_pose_cache)
+            for key, mesh in meshes.items()}
+        self.renderer = MeshRenderer(camera, meshes)
+
+    def close(self) -> None:
+        """Release the renderer's GL context in this process."""
+        self.renderer.close()
+
+    def sample(self, index: int) -> SyntheticSample:
+        """Render sample number ``index`` (a non-negative int) as a SyntheticSample."""
+        return self.sample_with_layout(index)[0]
+
+    def sample_with_layout(self, index: int) -> tuple[SyntheticSample, TableLayout]:
+        """Render sample ``index``; return it and its ``TableLayout``."""
+        if int(index) != index or index < 0:
+            raise InputError(f'sample index must be a non-negative integer, got {index}')
+        config = self.config
+        rng = np.random.default_rng([self.seed, 3, int(index)])
+        radius = rng.uniform(*config.cluster_radius_range)
+        placed = self._layout(rng, radius)
+        world_to_camera = self._camera_pose(rng, radius)
+        rotation_wc, translation_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
+        draws, kept = [], []
+        for mesh in placed:
+            rotation = rotation_wc @ mesh.rotation
+            translation = rotation_wc @ mesh.translation + translation_wc
+            if (self.hulls[mesh.key] @ rotation.T + translation)[:, 2].min() < _MIN_DEPTH:
+                continue
+            draws.append(Draw(mesh.key, rotation, translation,
+                              tuple(rng.uniform(*config.color_gain_range, 3))))
+            kept.append(mesh)
+        targets = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
+        materials = [self._material(rng) for _ in draws]
+        lights = self._lights(rng, world_to_camera, radius)
+        planes = self._planes(rng, world_to_camera, radius)
+        rendered = self.renderer.render_lit(draws, lights, materials, planes, targets)
+        image = random_background(rng, self.camera.height, self.camera.width,
+                                  self.backgrounds)
+        image[rendered.covered] = rendered.rgb[rendered.covered]
+        image = color_response(rng, image, config.white_balance_range, config.gamma_range)
+        image = apply_camera_effects(rng, image, config.effects)
+        instances = visible_instances(rendered, draws, targets, self.camera, self.hulls)
+        return (SyntheticSample(image, self.camera, instances),
+                TableLayout(tuple(kept), world_to_camera))
+
+    def _layout(self, rng, radius):
+        """
+        Targets and clutter resting on the table, footprints apart (targets listed first).
+
+        A mesh that finds no free spot in ``_SPOT_ATTEMPTS`` tries, in a disc growing to
+        twice ``radius``, is left out.
+        """
+        config = self.config
+        count = min(int(rng.integers(config.targets_per_image[0],
+                                     config.targets_per_image[1] + 1)), len(self.target_names))
+        keys = [f'target/{self.target_names[i]}'
+                for i in rng.choice(len(self.target_names), count, replace=False)]
+        clutter = int(rng.integers(config.clutter_per_image[0], config.clutter_per_image[1] + 1))
+        keys += [self.clutter_keys[i] for i in rng.integers(len(self.clutter_keys), size=clutter)]
+        # Targets and clutter mixed: clutter stands between the targets too.
+        order = rng.permutation(count + clutter)
+        placed, polygons = {}, []
+        for k in order:
+            key = keys[k]
+            if not key.startswith('shape/') and rng.random() < config.upright_probability:
+                rotation = yaw_rotation(rng.uniform(0.0, 2.0 * np.pi))
+            else:
+                rotation = self.stable[key].sample(rng)
+            points = self.hulls[key] @ rotation.T
+            shape = footprint(points[:, :2])
+            for attempt in range(_SPOT_ATTEMPTS):
+                # The disc grows while the spots tried are taken.
+                spot = _in_disc(rng, radius * (1.0 + attempt / _SPOT_ATTEMPTS))
+                polygon = shape + spot
+                if not any(polygons_overlap(polygon, other, _FOOTPRINT_GAP)
+                           for other in polygons):
+                    polygons.append(polygon)
+                    placed[k] = PlacedMesh(key, rotation, np.array(
+                        [spot[0], spot[1], resting_height(rotation, self.hulls[key])]))
+                    break
+        return [placed[k] for k in sorted(placed)]
+
+    def _camera_pose(self, rng, radius):
+        """Draw the world-to-camera (4, 4) of a camera looking down at the cluster."""
+        config = self.config
+        target = np.append(_in_disc(rng, config.look_offset * radius), 0.0)
+        low, high = np.sin(np.radians(config.camera_elevation_range_deg))
+        elevation = np.arcsin(rng.uniform(low, high))
+        azimuth = rng.uniform(0.0, 2.0 * np.pi)
+        direction = np.array([np.cos(elevation) * np.cos(azimuth),
+                              np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+        position = target + rng.uniform(*config.camera_distance_range) * direction
+        return look_at(position, target,
+                       np.radians(rng.uniform(*config.inplane_range_deg)))
+
+    def _material(self, rng):
+        low, high = np.log(self.config.shininess_range)
+        return Material(float(rng.uniform(*self.config.specular_range)),
+                        float(np.exp(rng.uniform(low, high))))
+
+    def _lights(self, rng, world_to_camera, radius):
+        """Make ambient light and point lights above the table, in the camera frame."""
+        config = self.config
+        lights = []
+        for _ in range(int(rng.integers(config.lights_per_image[0],
+                                        config.lights_per_image[1] + 1))):
+            side = _in_disc(rng, config.light_spread)
+            position = np.array([side[0], side[1], rng.uniform(*config.light_height_range)])
+            tint = rng.uniform(0.9, 1.1, 3)
+            lights.append(PointLight(tuple(_to_camera(world_to_camera, position)),
+                                     tuple(rng.uniform(*config.light_range) * tint)))
+        ambient = rng.uniform(*config.ambient_range) * rng.uniform(0.95, 1.05, 3)
+        # The shadow sphere holds the cluster and its tallest meshes.
+        center = _to_camera(world_to_camera, np.array([0.0, 0.0, 0.1]))
+        return SceneLights(tuple(lights), tuple(ambient), tuple(center), radius + 0.3)
+
+    def _planes(self, rng, world_to_camera, radius):
+        """Make the table, and maybe a wall behind the cluster, in the camera frame."""
+        config = self.config
+        rotation_wc = world_to_camera[:3, :3]
+        table_rotation = rotation_wc @ yaw_rotation(rng.uniform(0.0, 2.0 * np.pi))
+        half = rng.uniform(*config.table_half_size_range, 2)
+        half = np.maximum(half, radius + 0.1)
+        planes = [TexturedPlane(table_rotation, _to_camera(world_to_camera, np.zeros(3)),
+                                tuple(half), self._texture(rng),
+                                float(rng.uniform(*config.texture_tile_range)),
+                                self._material(rng))]
+        if rng.random() < config.wall_probability:
+            # Behind the cluster as the camera sees it: opposite the camera, +-45 deg.
+            camera_position = -rotation_wc.T @ world_to_camera[:3, 3]
+            away = np.arctan2(-camera_position[1], -camera_position[0]) + \
+                rng.uniform(-np.pi / 4, np.pi / 4)
+            normal = -np.array([np.cos(away), np.sin(away), 0.0])    # towards the cluster
+            along = np.array([-normal[1], normal[0], 0.0])
+            up = np.array([0.0, 0.0, 1.0])
+            wall_rotation = np.stack([along, np.cross(normal, along), normal], axis=1)
+            centre = -normal * rng.uniform(*config.wall_distance_range) + \
+                up * _WALL_HALF_SIZE[1]
+            planes.append(TexturedPlane(rotation_wc @ wall_rotation,
+                                        _to_camera(world_to_camera, centre), _WALL_HALF_SIZE,
+                                        self._texture(rng),
+                                        float(rng.uniform(*config.texture_tile_range)),
+                                        self._material(rng)))
+        return planes
+
+    def _texture(self, rng):
+        return random_background(rng, _TEXTURE_SIZE, _TEXTURE_SIZE, self.backgrounds)
+
+
+def _in_disc(rng, radius):
+    """(2,) a point uniform in the disc of ``radius`` about the origin."""
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    return radius * np.sqrt(rng.random()) * np.array([np.cos(angle), np.sin(angle)])
+
+
+def _to_camera(world_to_camera, point):
+    return world_to_camera[:3, :3] @ point + world_to_camera[:3, 3]

@@ -1,0 +1,175 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""Table-top scenes: meshes resting on the table, apart, exact ground truth, LM-O cameras."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
+from bbpose_ros.core.render.reference import render_depth
+from bbpose_ros.core.synth.effects import color_response
+from bbpose_ros.core.synth.stable_poses import compute_stable_poses, resting_height
+from bbpose_ros.core.synth.table_config import TableConfig
+from bbpose_ros.core.synth.table_scenes import polygons_overlap, TableScenes
+
+CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
+TARGETS = ('ape', 'duck', 'glue')
+# Few meshes keep the reference z-buffer and the stable poses quick.
+CONFIG = TableConfig(targets_per_image=(3, 3), clutter_per_image=(4, 5), shape_count=4)
+
+
+@pytest.fixture(scope='module')
+def table(lmo_models):
+    """Table scenes of TARGETS among the can and random shapes, seed 5."""
+    scenes = TableScenes({name: lmo_models[name] for name in TARGETS}, CAMERA, 5, CONFIG,
+                         {'can': lmo_models['can']})
+    try:
+        scenes.sample(0)
+    except RuntimeError as err:
+        pytest.skip(f'headless OpenGL (EGL) unavailable: {err}')
+    yield scenes
+    scenes.close()
+
+
+@pytest.fixture(scope='module')
+def rendered(table):
+    """Render samples 0-2 with their layouts."""
+    return [table.sample_with_layout(i) for i in range(3)]
+
+
+def _world_points(table, placed):
+    return table.renderer.meshes[placed.key].vertices.astype(float) @ placed.rotation.T + \
+        placed.translation
+
+
+def test_meshes_rest_on_the_table_and_do_not_intersect(table, rendered):
+    for _, layout in rendered:
+        assert len(layout.meshes) >= 6
+        points = [_world_points(table, placed) for placed in layout.meshes]
+        for cloud in points:
+            assert abs(cloud[:, 2].min()) < 1e-5         # resting on the table (metres)
+        # No vertex of one mesh lies more than 1 mm inside another's convex hull.
+        for a, cloud in enumerate(points):
+            hull = ConvexHull(cloud)
+            for b, other in enumerate(points):
+                if a != b:
+                    inside = other @ hull.equations[:, :3].T + hull.equations[:, 3]
+                    assert inside.max(axis=1).min() > -0.001
+
+
+def test_ground_truth_matches_a_reference_z_buffer(table, rendered, lmo_models):
+    checked = 0
+    for sample, layout in rendered[:2]:
+        rotation_wc, translation_wc = layout.world_to_camera[:3, :3], \
+            layout.world_to_camera[:3, 3]
+        depths = []
+        for placed in layout.meshes:
+            mesh = table.renderer.meshes[placed.key]
+            depths.append(render_depth(CAMERA, mesh.vertices, mesh.faces,
+                                       rotation_wc @ placed.rotation,
+                                       rotation_wc @ placed.translation + translation_wc))
+        depths = np.stack(depths)
+        front = np.where(np.isfinite(depths.min(axis=0)), depths.argmin(axis=0), -1)
+        keys = [placed.key for placed in layout.meshes]
+        masks = np.stack([instance.mask for instance in sample.instances])
+        assert masks.sum(axis=0).max() <= 1
+        for instance in sample.instances:
+            model = lmo_models[instance.object_name]
+            np.testing.assert_allclose(instance.box_uv, projected_box_uv(
+                CAMERA, model.vertices, instance.rotation, instance.translation), atol=1e-6)
+            k = keys.index(f'target/{instance.object_name}')
+            visible = front == k
+            # Edge pixels may differ between the rasterisers.
+            assert np.count_nonzero(visible ^ instance.mask) <= 0.02 * visible.sum() + 30
+            box = instance.box_uv
+            if box[0] >= 0 and box[1] >= 0 and box[2] <= 639 and box[3] <= 479:
+                full = np.isfinite(depths[k])
+                assert instance.visib_fract == pytest.approx(
+                    instance.mask.sum() / full.sum(), abs=0.02)
+                checked += 1
+    assert checked >= 3
+
+
+def test_cameras_look_down_at_the_table_as_configured(rendered):
+    for _, layout in rendered:
+        rotation_wc = layout.world_to_camera[:3, :3]
+        position = -rotation_wc.T @ layout.world_to_camera[:3, 3]
+        distance = np.linalg.norm(position)
+        low, high = CONFIG.camera_distance_range
+        assert low - 0.25 < distance < high + 0.25       # from the look point, near the origin
+        elevation = np.degrees(np.arcsin(position[2] / distance))
+        assert CONFIG.camera_elevation_range_deg[0] - 15 < elevation < \
+            CONFIG.camera_elevation_range_deg[1] + 15
+        up = rotation_wc @ [0.0, 0.0, 1.0]           # the table normal, camera frame
+        roll = np.degrees(np.arctan2(up[0], -up[1]))
+        assert CONFIG.inplane_range_deg[0] - 1e-6 <= roll <= CONFIG.inplane_range_deg[1] + 1e-6
+
+
+def test_samples_are_deterministic(table, rendered):
+    again, _ = table.sample_with_layout(1)
+    first, _ = rendered[1]
+    np.testing.assert_array_equal(again.image_rgb, first.image_rgb)
+    assert [i.object_name for i in again.instances] == [i.object_name for i in first.instances]
+
+
+def test_stable_poses_stand_on_a_face_over_the_centre_of_mass(lmo_models):
+    model = lmo_models['glue']
+    poses = compute_stable_poses(model.vertices, model.faces)
+    assert poses.probabilities.sum() == pytest.approx(1.0) and len(poses.probabilities) >= 2
+    import trimesh
+    center = trimesh.Trimesh(model.vertices, model.faces).center_mass
+    for rotation in poses.rotations:
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
+        points = model.hull_points @ rotation.T
+        points[:, 2] += resting_height(rotation, model.hull_points)
+        contact = points[points[:, 2] < 1e-4, :2]
+        assert len(contact) >= 3
+        support = ConvexHull(contact)
+        com = rotation @ center
+        assert (support.equations[:, :2] @ com[:2] + support.equations[:, 2]).max() < 0
+
+
+def test_overlap_test_separates_convex_polygons():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    assert polygons_overlap(square, square + [0.5, 0.5])
+    assert not polygons_overlap(square, square + [1.01, 0.0])
+    assert polygons_overlap(square, square + [1.01, 0.0], gap=0.02)
+    diamond = np.array([[0, -1], [1, 0], [0, 1], [-1, 0]], float) * 0.6 + [1.75, 1.75]
+    assert not polygons_overlap(square, diamond)      # apart along the diamond's edge normal
+
+
+def test_color_response_casts_a_colour_and_bends_the_mid_tones():
+    image = np.full((4, 4, 3), 128, np.uint8)
+    rng = np.random.default_rng(0)
+    np.testing.assert_array_equal(color_response(rng, image, (1.0, 1.0), (1.0, 1.0)), image)
+    darker = color_response(rng, image, (1.0, 1.0), (1.5, 1.5))
+    assert (darker == round(255 * (128 / 255) ** 1.5)).all()
+    cast = color_response(rng, image, (0.8, 1.2), (1.0, 1.0))
+    assert len(np.unique(cast.reshape(-1, 3), axis=0)) == 1 and np.ptp(cast[0, 0]) > 5
+
+
+def test_bad_config_is_refused(lmo_models):
+    with pytest.raises(InputError, match='lights_per_image'):
+        TableConfig(lights_per_image=(1, 4))
+    with pytest.raises(InputError, match='camera_elevation'):
+        replace(CONFIG, camera_elevation_range_deg=(10.0, 95.0))
+    with pytest.raises(InputError, match='both targets and distractors'):
+        TableScenes({'ape': lmo_models['ape']}, CAMERA, 0, CONFIG, {'ape': lmo_models['ape']})
