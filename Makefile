@@ -129,6 +129,6 @@ weights: setup photos
 		--seed 3 --crops 24000 --crop-size 96 --dense-size 32 --backgrounds $(PHOTOS) \
 		--inplane-range-deg=-60,60
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
-		--run-dir $(CACHE)/runs/dense_lite0 --crop-size 64 --steps 4000 --every 500 \
+		--run-dir $(CACHE)/runs/dense_lite0 --crop-size 64 --steps 6000 --every 750 \
 		--batch 32 --lr 2e-3 --threads 1 --seed 7 --real-val \
 		--export bbpose_ros/weights/dense.pt

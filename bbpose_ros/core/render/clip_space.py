@@ -53,4 +53,3 @@ def opengl_projection(camera: CameraIntrinsics, near: float, far: float,
 def gl_matrix(matrix: npt.ArrayLike) -> bytes:
     """Return the bytes of a square matrix in GL's column-major float32 layout."""
     return np.ascontiguousarray(np.asarray(matrix, dtype=np.float32).T).tobytes()
-

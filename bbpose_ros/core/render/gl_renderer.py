@@ -311,7 +311,7 @@ class _GlState:
         """
         ctx, program = self.ctx, self.shaded
         program['u_projection'].write(gl_matrix(opengl_projection(camera, self.near,
-                                                                   self.far)))
+                                                                  self.far)))
         self.frame.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
