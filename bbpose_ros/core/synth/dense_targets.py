@@ -42,7 +42,8 @@ def dense_targets(model_coordinates: np.ndarray, visible: np.ndarray, amodal: np
         visible: (R, R) bool, render pixels where the target is the front-most surface.
         amodal: (R, R) bool, the target's whole (unoccluded) silhouette.
         size: grid side M; R must be a multiple of it.
-        box_min, box_size: (3,) the model box (``dense_grid.model_box``), metres.
+        box_min: (3,) the model box's minimum corner (``dense_grid.model_box``), metres.
+        box_size: (3,) the model box's size, metres.
 
     Returns:
         (M, M, 3) float32 normalised coordinates (0 where no target pixel), (M, M) float32

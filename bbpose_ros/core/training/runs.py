@@ -131,17 +131,10 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     on the CPU. ``device``: 'cpu' or 'cuda' (with mixed precision, see ``device.py``).
     """
     device = _prepare(run_dir, seed, threads, device)
-    network = QNet(config)
-    load_imagenet_trunks(network)
-    network = network.to(device.device, memory_format=torch.channels_last)
-    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
-                                  settings.lr, weight_decay=settings.weight_decay)
+    network, optimizer = _crop_network(QNet(config), settings, device)
     batches = QNetBatches(cache, config, models, settings, seed)
     validation = {}
-    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
-                'settings': asdict(settings), 'total_steps': steps,
-                'device': device.device.type,
-                'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
+    training = _crop_run_record(cache, settings, steps, seed, device)
     run_loop(run_dir, network, optimizer,
              lambda step: qnet_step(network, optimizer, batches, device), steps, seconds,
              settings.lr,
@@ -167,17 +160,11 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
     """
     device = _prepare(run_dir, seed, threads, device)
     network = DenseNet(config)
-    load_imagenet_trunks(network)
     freeze_early_blocks(network, settings.frozen_blocks)
-    network = network.to(device.device, memory_format=torch.channels_last)
-    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
-                                  settings.lr, weight_decay=settings.weight_decay)
+    network, optimizer = _crop_network(network, settings, device)
     batches = DenseBatches(cache, config, models, settings, seed)
     validation = {}
-    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
-                'settings': asdict(settings), 'total_steps': steps,
-                'device': device.device.type,
-                'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
+    training = _crop_run_record(cache, settings, steps, seed, device)
 
     def figures():
         values = dense_validation(network, batches, device)
@@ -192,6 +179,22 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
              on_checkpoint=_exporter(run_dir, network, 'dense', training, export, validation),
              progress=progress, device=device)
     return network
+
+
+def _crop_network(network, settings, device):
+    """Load a crop net's ImageNet trunk, put it on ``device``; return it and its AdamW."""
+    load_imagenet_trunks(network)
+    network = network.to(device.device, memory_format=torch.channels_last)
+    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
+                                  settings.lr, weight_decay=settings.weight_decay)
+    return network, optimizer
+
+
+def _crop_run_record(cache, settings, steps, seed, device):
+    """Return the weight file's training record of a Q-Net or dense run on a cache."""
+    return {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
+            'settings': asdict(settings), 'total_steps': steps, 'device': device.device.type,
+            'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
 
 
 def parameter_groups(network, trunk_lr_scale):
