@@ -69,3 +69,15 @@ def test_rotation_error_floor_with_ground_truth_boxes(pipeline, lmo_frames):
     report = evaluate(lmo_frames[:FRAMES], pipeline, boxes='gt', rotation='estimator',
                       progress=False)
     assert report['mean']['re_median_deg'] <= ROTATION_MEDIAN_CEILING_DEG
+
+
+def test_the_shipped_dense_net_gives_candidates_and_masks(lmo_models, lmo_frames):
+    pipeline = load_pipeline(lmo_models, PipelineOptions(threads=2, pose_source='dense+qnet',
+                                                         dense_mask='amodal'))
+    frame = lmo_frames[0]
+    result = pipeline.estimate(frame.load_image(), frame.camera)
+    assert result.poses and 'correspondences' in result.timings_ms
+    assert {p.source for p in result.poses} <= {'pnp', 'qnet'}
+    maps = pipeline.correspondences.maps(frame.load_image(), [p.detection for p in result.poses])
+    # The predicted masks cover part of each crop, not all or nothing.
+    assert 0.02 < float(maps.amodal.mean()) < 0.9
