@@ -153,8 +153,7 @@ def mask_over_box(silhouette, size=32, margin=0.1):
     inside = (ii >= 0) & (ii < size) & (jj >= 0) & (jj < size)
     np.add.at(probabilities, (jj[inside], ii[inside]), silhouette[inside])
     np.add.at(counts, (jj[inside], ii[inside]), 1)
-    return ForegroundMasks(probabilities[None] / np.maximum(counts[None], 1), square[None],
-                           np.array([True]))
+    return ForegroundMasks(probabilities[None] / np.maximum(counts[None], 1), square[None])
 
 
 @pytest.mark.parametrize('name,seed', [('driller', 4), ('duck', 5)])

@@ -22,6 +22,7 @@ errors are taken over the instances that were found.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 import math
@@ -236,8 +237,7 @@ def source_summary(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, A
     """
     pooled = [s for object_scores in scores.values() for s in object_scores if s.detected]
     summary = {}
-    for source in sorted({s.source for s in pooled}, key=lambda x: -sum(
-            s.source == x for s in pooled)):
+    for source, _ in Counter(s.source for s in pooled).most_common():
         chosen = [s for s in pooled if s.source == source]
         add_ok, cm_deg = _passes(chosen)
         summary[source] = {'n': len(chosen), 'add_s_recall': float(np.mean(add_ok)),

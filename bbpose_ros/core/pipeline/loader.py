@@ -79,7 +79,6 @@ def load_pipeline(models: Mapping[str, ObjectModel],
         load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
         options.score_threshold, options.max_instances, options.backend, options.device,
         threads)
-    batch = min(len(names) * options.max_instances, MAX_WARM_UP_BATCH)
     rotation = correspondences = None
     if options.uses_qnet:
         qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
@@ -87,7 +86,7 @@ def load_pipeline(models: Mapping[str, ObjectModel],
         ranked = selector.weight > 0 or options.candidates_per_detection > 1
         rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked)
-        rotation.warm_up(batch)
+        rotation.warm_up(_warm_up_batch(models, options))
     if options.runs_dense:
         correspondences = load_correspondences(models, options, dense_weights)
     detector.warm_up()
@@ -109,5 +108,10 @@ def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOpt
     network = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', list(models))
     stage = DenseCorrespondenceEstimator(network, models, options.backend, options.device,
                                          options.threads or None)
-    stage.warm_up(min(len(models) * options.max_instances, MAX_WARM_UP_BATCH))
+    stage.warm_up(_warm_up_batch(models, options))
     return stage
+
+
+def _warm_up_batch(models, options):
+    """Return the largest crop batch a frame can bring: every object's instances, bounded."""
+    return min(len(models) * options.max_instances, MAX_WARM_UP_BATCH)

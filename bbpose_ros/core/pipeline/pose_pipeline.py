@@ -134,9 +134,10 @@ class PosePipeline:
             detections = self.detector(image_rgb)
             timer.lap('detector')
         detections = [d for d in detections if d.object_name in self.models]
-        dense = None
+        dense = None      # (DenseMaps, PnP poses or None when only the masks are used)
         if detections and self.correspondences is not None and rotations is None:
-            dense = self.correspondences(image_rgb, camera, detections)
+            dense = (self.correspondences(image_rgb, camera, detections) if self.dense_poses
+                     else (self.correspondences.maps(image_rgb, detections), None))
             timer.lap('correspondences')
         source = 'given' if rotations is not None else 'qnet'
         if detections and rotations is None and self.rotation_estimator is not None:
@@ -177,7 +178,7 @@ class PosePipeline:
         if self.dense_mask == 'none':
             return None
         return ForegroundMasks(maps.amodal if self.dense_mask == 'amodal' else maps.visible,
-                               maps.squares_uv, np.ones(len(maps.squares_uv), bool))
+                               maps.squares_uv)
 
     def _dense_candidates(self, camera, detections, dense_poses):
         """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""

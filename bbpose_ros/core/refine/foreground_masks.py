@@ -29,6 +29,7 @@ continuous pixels, the crop's pixel edges); cell (row j, column i) covers
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -46,19 +47,22 @@ class ForegroundMasks:
     Attributes:
         probabilities: (N, M, M) foreground probability of each cell, 0..1.
         squares_uv: (N, 4) each mask's square [u0, v0, u1, v1], full-frame pixels.
-        present: (N,) bool, False where a pose has no mask (its colours alone count).
 
     """
 
     probabilities: np.ndarray
     squares_uv: np.ndarray
-    present: np.ndarray
+
+    @cached_property
+    def _log_odds_table(self) -> np.ndarray:
+        """(N * M * M,) float32 log-odds of the cells, made once for all iterations."""
+        p = np.clip(self.probabilities, EPSILON, 1.0 - EPSILON)
+        return np.log(p / (1.0 - p)).astype(np.float32).ravel()
 
     def take(self, indices: Sequence[int]) -> 'ForegroundMasks':
         """Return the masks of the given poses, in that order."""
         indices = np.asarray(indices, dtype=np.int64)
-        return ForegroundMasks(self.probabilities[indices], self.squares_uv[indices],
-                               self.present[indices])
+        return ForegroundMasks(self.probabilities[indices], self.squares_uv[indices])
 
     def log_odds(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """
@@ -68,20 +72,16 @@ class ForegroundMasks:
             cols, rows: (N, ...) integer pixel columns and rows, one leading row per pose.
 
         Returns:
-            (N, ...) float32 log-odds; OUTSIDE_LOG_ODDS outside a square, 0 for a pose
-            without a mask.
+            (N, ...) float32 log-odds; OUTSIDE_LOG_ODDS outside a square.
 
         """
         count, size = self.probabilities.shape[:2]
-        p = np.clip(self.probabilities, EPSILON, 1.0 - EPSILON)
-        table = np.log(p / (1.0 - p)).astype(np.float32).ravel()
-        squares = self.squares_uv.astype(np.float64).reshape(count, *([1] * (cols.ndim - 1)), 4)
+        shape = (count, *([1] * (cols.ndim - 1)))
+        squares = self.squares_uv.astype(np.float64).reshape(*shape, 4)
         cell = size / (squares[..., 2] - squares[..., 0])
         i = np.floor((cols - squares[..., 0]) * cell).astype(np.int64)
         j = np.floor((rows - squares[..., 1]) * cell).astype(np.int64)
         inside = (i >= 0) & (i < size) & (j >= 0) & (j < size)
-        pose = np.arange(count).reshape(count, *([1] * (cols.ndim - 1)))
+        pose = np.arange(count).reshape(shape)
         index = (pose * size + np.clip(j, 0, size - 1)) * size + np.clip(i, 0, size - 1)
-        values = np.where(inside, table[index], np.float32(OUTSIDE_LOG_ODDS))
-        present = self.present.reshape(count, *([1] * (cols.ndim - 1)))
-        return np.where(present, values, np.float32(0.0)).astype(np.float32)
+        return np.where(inside, self._log_odds_table[index], np.float32(OUTSIDE_LOG_ODDS))

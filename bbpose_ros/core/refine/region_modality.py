@@ -211,8 +211,7 @@ class RegionModality:
         pose = np.arange(len(rotation))[:, None, None] * _BINS
         pixel_log_ratio = log_ratio_table[pose + line_bins]
         if self.masks is not None:
-            weight = np.where(self.masks.present, self.mask_weight, 0.0).astype(np.float32)
-            weight = weight[:, None, None]
+            weight = np.float32(self.mask_weight)
             pixel_log_ratio = (1.0 - weight) * pixel_log_ratio \
                 + weight * self.masks.log_odds(cols, rows)
         log_ratio = pixel_log_ratio.reshape(*valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
