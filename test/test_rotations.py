@@ -127,6 +127,19 @@ def test_exp_so3_turns_about_the_vector_by_its_length():
     assert rot.exp_so3(np.zeros((2, 4, 3))).shape == (2, 4, 3, 3)
 
 
+def test_log_so3_inverts_exp_so3_below_half_a_turn():
+    rng = np.random.default_rng(8)
+    for magnitude in (0.0, 1e-6, 0.3, 3.0):
+        vectors = rng.normal(size=(20, 3))
+        vectors *= magnitude / np.linalg.norm(vectors, axis=1, keepdims=True)
+        np.testing.assert_allclose(rot.log_so3(rot.exp_so3(vectors)), vectors, atol=1e-9)
+    # Past half a turn the shorter way round comes back: the same rotation.
+    long_way = np.array([0.0, 0.0, 1.5 * np.pi])
+    np.testing.assert_allclose(rot.log_so3(rot.exp_so3(long_way)), [0.0, 0.0, -0.5 * np.pi],
+                               atol=1e-12)
+    assert rot.log_so3(np.eye(3)[None, None].repeat(2, 1)).shape == (1, 2, 3)
+
+
 def test_nearest_rotation_projects_onto_so3():
     rng = np.random.default_rng(3)
     noisy = MATRICES[:50] * rng.uniform(0.997, 1.003, (50, 1, 1)) \

@@ -35,7 +35,7 @@ from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
                                                     QNetTrainSettings)
-from bbpose_ros.core.training.runs import parameter_groups
+from bbpose_ros.core.training.runs import parameter_groups, train_detector
 from bbpose_ros.core.training.verifier_training import (candidate_targets, CandidateCrops,
                                                         verifier_step, verifier_validation,
                                                         VerifierBatches, VerifierTrainSettings)
@@ -359,3 +359,25 @@ def test_a_resumed_run_keeps_its_own_trunk_rate_and_refuses_other_groups(tmp_pat
     assert resumed.param_groups[1]['lr'] == pytest.approx(0.5 * resumed.param_groups[0]['lr'])
     with pytest.raises(InputError, match='other optimizer groups'):
         run([1.0], 6)
+
+
+def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
+    cache = _fake_cache(np.random.default_rng(9), scenes=4)
+    torch.manual_seed(1)
+    trained = CenterBoxNet(DetectorConfig(OBJECTS))
+    settings = DetectorTrainSettings(batch=2, lr=1e-12, val_fraction=0.25)
+    tuned = train_detector(cache, DetectorConfig(OBJECTS), settings, tmp_path / 'run', 1,
+                           threads=1, progress=False, init=trained)
+    fresh = train_detector(cache, DetectorConfig(OBJECTS), settings, tmp_path / 'other', 1,
+                           threads=1, progress=False)
+    # One step at a vanishing rate: the run holds the given weights, not new random ones.
+    for (name, start), end, other in zip(trained.state_dict().items(),
+                                         tuned.state_dict().values(),
+                                         fresh.state_dict().values()):
+        if start.is_floating_point() and 'running' not in name:
+            assert torch.allclose(start, end, atol=1e-6), name
+    assert any(not torch.allclose(a, b) for a, b in zip(trained.parameters(),
+                                                        fresh.parameters()))
+    with pytest.raises(InputError, match='does not fit'):
+        train_detector(cache, DetectorConfig(OBJECTS[:4]), settings, tmp_path / 'third', 1,
+                       threads=1, progress=False, init=trained)

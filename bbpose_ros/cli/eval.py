@@ -87,6 +87,13 @@ def add_pipeline_arguments(parser):
     parser.add_argument('--refine-hypotheses', type=int, default=defaults.refine_hypotheses,
                         help="refine each detection's K best-ranked rotation hypotheses and "
                              'keep the best-scored (default %(default)s)')
+    parser.add_argument('--refine-prior-deg', type=float, default=defaults.refine_prior_deg,
+                        help="standard deviation of a prior around each start's rotation, "
+                             'degrees: the refinement moves a start less the smaller it is; '
+                             '0: none (default %(default)s)')
+    parser.add_argument('--refine-prior-mm', type=float, default=defaults.refine_prior_mm,
+                        help="the same for the start's translation, millimetres "
+                             '(default %(default)s)')
     parser.add_argument('--pose-source', choices=POSE_SOURCES, default=defaults.pose_source,
                         help='candidate poses from Q-Net + the Bounding Box Equation (qnet, '
                              'the paper), PnP over the dense correspondences (dense), or both '
@@ -108,6 +115,8 @@ def pipeline_options(args):
         return PipelineOptions(box_consistency_weight=args.box_consistency_weight,
                                refine=args.refine, refine_min_score=args.refine_min_score,
                                refine_hypotheses=args.refine_hypotheses,
+                               refine_prior_deg=args.refine_prior_deg,
+                               refine_prior_mm=args.refine_prior_mm,
                                pose_source=args.pose_source,
                                dense_translation=args.dense_translation,
                                dense_mask=args.dense_mask)
@@ -123,7 +132,8 @@ def build_pipeline(models, args):
         refiner = correspondences = None
         if options.refine:
             from bbpose_ros.core.pipeline.refinement import load_pose_refiner
-            refiner = load_pose_refiner(models, min_score=options.refine_min_score)
+            refiner = load_pose_refiner(models, options.refiner_config,
+                                        min_score=options.refine_min_score)
         if options.refine and options.dense_mask != 'none':
             from bbpose_ros.core.pipeline.loader import load_correspondences
             correspondences = load_correspondences(models, options, args.dense_weights)
@@ -196,6 +206,8 @@ def run(args):
                         'box_consistency_weight': args.box_consistency_weight,
                         'refine': args.refine, 'refine_min_score': args.refine_min_score,
                         'refine_hypotheses': args.refine_hypotheses,
+                        'refine_prior_deg': args.refine_prior_deg,
+                        'refine_prior_mm': args.refine_prior_mm,
                         'pose_source': args.pose_source,
                         'dense_translation': args.dense_translation,
                         'dense_mask': args.dense_mask,

@@ -169,6 +169,9 @@ def _detector_options(parser):
                         help='input size recorded in the --export copy, multiples of 16: the '
                              'detector is fully convolutional and may run at another size '
                              "than the cache's (default: the cache's)")
+    parser.add_argument('--init', type=Path, default=None, metavar='WEIGHTS',
+                        help='start from this detector weight file (same objects and '
+                             '--backbone) instead of ImageNet: fine-tuning')
 
 
 def _backbone_options(parser):
@@ -449,10 +452,15 @@ def run_detector(args):
             side <= 0 or side % 16 for side in export_size)):
         raise InputError('--export-input-size needs --export and W,H in multiples of 16, got '
                          f'{export_size}')
+    init = None
+    if args.init is not None:
+        from bbpose_ros.core.pipeline.weights import load_network
+        init = load_network(args.init, 'detector', list(models))
     train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
                    args.every, device=device,
-                   export_input_size=None if export_size is None else tuple(export_size))
+                   export_input_size=None if export_size is None else tuple(export_size),
+                   init=init)
     return 0
 
 

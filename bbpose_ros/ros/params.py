@@ -182,6 +182,12 @@ PARAMETERS = {
     'refine_min_score': option_spec(
         'refine_min_score', 'Refined poses scoring below this (0..1: share of contour lines '
         'that agree with the image) are dropped; 0 keeps all.'),
+    'refine_prior_deg': option_spec(
+        'refine_prior_deg', "Standard deviation of a prior around each refinement start's "
+        'rotation, degrees: the smaller, the less a start moves (drift on weak evidence and '
+        'far corrections alike); 0: none.'),
+    'refine_prior_mm': option_spec(
+        'refine_prior_mm', "The same for the start's translation, millimetres; 0: none."),
     'pose_source': option_spec(
         'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
         'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '

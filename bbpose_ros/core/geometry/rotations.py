@@ -193,6 +193,13 @@ def exp_so3(rotation_vector: npt.ArrayLike) -> np.ndarray:
     return matrices.reshape(vector.shape[:-1] + (3, 3))
 
 
+def log_so3(rotation: npt.ArrayLike) -> np.ndarray:
+    """(..., 3) rotation vectors (axis times angle, radians, <= pi) of (..., 3, 3) rotations."""
+    matrices = np.asarray(rotation, dtype=float)
+    vectors = Rotation.from_matrix(matrices.reshape(-1, 3, 3)).as_rotvec()
+    return vectors.reshape(matrices.shape[:-2] + (3,))
+
+
 def perturb_pose(rotation: npt.ArrayLike, translation: npt.ArrayLike, angle_deg: float,
                  offset_m: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """

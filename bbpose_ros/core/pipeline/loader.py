@@ -92,8 +92,9 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     detector.warm_up()
     refiner = None
     if options.refine:
-        refiner = load_pose_refiner(models, min_score=options.refine_min_score,
-                                    progress=False, log=refiner_log)
+        refiner = load_pose_refiner(models, options.refiner_config,
+                                    min_score=options.refine_min_score, progress=False,
+                                    log=refiner_log)
     return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
                         refiner=refiner, candidates=options.candidates_per_detection,
                         correspondences=correspondences, dense_poses=options.uses_dense,

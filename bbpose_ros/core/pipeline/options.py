@@ -30,6 +30,7 @@ from typing import Any
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.backends import BACKENDS
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
+from bbpose_ros.core.refine.refiner import RefinerConfig
 
 
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')
@@ -60,6 +61,9 @@ class PipelineOptions:
             rotation hypotheses are solved and refined (the best-scored is kept); each costs
             the screening iterations (accuracy by their number: docs/refinement.md).
         refine_min_score: with refinement, poses scored below this (0..1) are dropped.
+        refine_prior_deg: with refinement, the standard deviation of a prior around each
+            start's rotation, degrees; 0: none (``RefinerConfig.prior_rotation_deg``).
+        refine_prior_mm: the same for the start's translation, millimetres; 0: none.
         pose_source: where each detection's candidate poses come from: 'qnet' (Q-Net's
             hypotheses + the Bounding Box Equation, the paper's path), 'dense' (PnP over
             the dense net's correspondences, with PnP's or the equation's translation per
@@ -86,6 +90,8 @@ class PipelineOptions:
     refine: bool = _option(True)
     refine_hypotheses: int = _option(3, 1, 8)
     refine_min_score: float = _option(0.0, 0.0, 1.0)
+    refine_prior_deg: float = _option(0.0, 0.0, 180.0)
+    refine_prior_mm: float = _option(0.0, 0.0, 1000.0)
     pose_source: str = _option('qnet', choices=POSE_SOURCES)
     dense_translation: str = _option('pnp', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)
@@ -114,6 +120,12 @@ class PipelineOptions:
     def runs_dense(self) -> bool:
         """Tell whether the dense net runs: for its PnP poses or its masks."""
         return self.uses_dense or (self.refine and self.dense_mask != 'none')
+
+    @property
+    def refiner_config(self) -> RefinerConfig:
+        """Return the refiner settings: the shipped RefinerConfig with these options' prior."""
+        return RefinerConfig(prior_rotation_deg=self.refine_prior_deg,
+                             prior_translation_m=self.refine_prior_mm / 1000.0)
 
     @property
     def candidates_per_detection(self) -> int:

@@ -62,10 +62,9 @@ class PoseRefiner:
             many iterations and only the best-scored continues (at least the config's
             iterations: every candidate is refined to the end). Screening needs the config's
             histogram_rate 1 (colours re-measured in full), under which it gives the same
-            pose as refining the chosen candidate in one run (unless keep_better_start gave
-            a start back) (unless no colours can be
-            measured at the pose it reached: then it ends as 'outside_image'); with another
-            rate every candidate is refined to the end.
+            pose as refining the chosen candidate in one run, unless keep_better_start gave
+            a start back or no colours can be measured at the pose it reached (then it ends
+            as 'outside_image'); with another rate every candidate is refined to the end.
 
     """
 
@@ -130,7 +129,8 @@ class PoseRefiner:
             finished = self._refine(
                 bins, camera, [(k, pose) for k, pose, _ in going],
                 [(result.rotation, result.translation) for *_, result in going], masks,
-                self.config.iterations - self.screening_iterations, self.screening_iterations)
+                self.config.iterations - self.screening_iterations, self.screening_iterations,
+                prior_centres=[(pose.rotation, pose.translation) for _, pose, _ in going])
             for (k, pose, _), result in zip(going, finished):
                 if not result.ok:       # a failure gives the candidate's own start back
                     result = dataclasses.replace(result, rotation=pose.rotation,
@@ -147,11 +147,15 @@ class PoseRefiner:
                 refined.append(with_refinement(pose, result))
         return refined
 
-    def _refine(self, bins, camera, jobs, starts, masks, iterations=None, first_iteration=0):
+    def _refine(self, bins, camera, jobs, starts, masks, iterations=None, first_iteration=0,
+                prior_centres=None):
+        centres = None if prior_centres is None else ([r for r, _ in prior_centres],
+                                                      [t for _, t in prior_centres])
         return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
                             [r for r, _ in starts], [t for _, t in starts], self.config,
                             iterations=iterations, first_iteration=first_iteration,
-                            masks=None if masks is None else masks.take([k for k, _ in jobs]))
+                            masks=None if masks is None else masks.take([k for k, _ in jobs]),
+                            prior_centres=centres)
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+import math
 
 import numpy as np
 import numpy.typing as npt
@@ -42,7 +43,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
-from bbpose_ros.core.refine.optimizer import apply_step, newton_step
+from bbpose_ros.core.refine.optimizer import apply_step, newton_step, start_prior
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
@@ -73,6 +74,11 @@ class RefinerConfig:
             ``region_modality``).
         keep_better_start: give back the start of a pose whose score the refinement
             lowered (the score is measured at the start too, one pass more).
+        prior_rotation_deg: standard deviation of a Gaussian prior around the start's
+            rotation, degrees (0: no prior): how far the start is believed off. Directions
+            the contour hardly constrains (an out-of-plane turn of a round object) then stay
+            near the start instead of drifting with the lines' noise; a far start moves less.
+        prior_translation_m: the same for the translation, metres (depth, mostly).
 
     """
 
@@ -86,6 +92,8 @@ class RefinerConfig:
     min_continuous_px: float = 3.0
     mask_weight: float = 1.0
     keep_better_start: bool = True
+    prior_rotation_deg: float = 0.0
+    prior_translation_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -100,6 +108,16 @@ class RefinerConfig:
                              'solvable, also for a pose without lines)')
         if not 0.0 <= self.histogram_rate <= 1.0:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
+        if not (self.prior_rotation_deg >= 0.0 and self.prior_translation_m >= 0.0):
+            raise InputError('start prior standard deviations must be >= 0 (0: no prior), '
+                             f'got {self.prior_rotation_deg} deg, {self.prior_translation_m} m')
+
+    @property
+    def prior_information(self) -> tuple[float, float]:
+        """(per radian squared, per metre squared) 1 / variance of the start prior; 0: none."""
+        rotation_rad = math.radians(self.prior_rotation_deg)
+        return (1.0 / rotation_rad ** 2 if rotation_rad else 0.0,
+                1.0 / self.prior_translation_m ** 2 if self.prior_translation_m else 0.0)
         if not 0.0 <= self.mask_weight <= 1.0:
             raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
 
@@ -139,7 +157,9 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                  translations: Sequence[npt.ArrayLike], config: RefinerConfig,
                  histograms: Sequence[ColorHistograms | None] | None = None,
                  iterations: int | None = None, first_iteration: int = 0,
-                 masks: ForegroundMasks | None = None) -> list[Refinement]:
+                 masks: ForegroundMasks | None = None,
+                 prior_centres: tuple[Sequence[npt.ArrayLike], Sequence[npt.ArrayLike]]
+                 | None = None) -> list[Refinement]:
     """
     Refine N poses in one image at once (all arrays carry the pose as first axis).
 
@@ -160,6 +180,10 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             is the one measured at the pose it stopped at, as it would have been).
         masks: per pose, a predicted foreground mask (``foreground_masks``), or None: the
             colours alone.
+        prior_centres: (rotations, translations) around which the start prior
+            (``RefinerConfig.prior_rotation_deg``, ``prior_translation_m``) lies, per pose
+            (default: the starts); a refinement continued at ``first_iteration`` passes the
+            first run's starts, so that it ends where one run would.
 
     Returns:
         Per pose, a Refinement; a start behind the camera or with too few contour lines
@@ -183,6 +207,12 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
     status[~finite | (translation[:, 2] <= 0.5 * modality.diameters)] = 'behind_camera'
+    if prior_centres is None:
+        anchor_rotation, anchor_translation = rotation.copy(), translation.copy()
+    else:
+        anchor_rotation = np.array(prior_centres[0], dtype=float).reshape(count, 3, 3)
+        anchor_translation = np.array(prior_centres[1], dtype=float).reshape(count, 3)
+        anchor_rotation[~finite], anchor_translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
     given = list(histograms) if histograms is not None else [None] * count
     # A given colour model (a track's) is kept through the iterations, as SRT3D does within
     # a frame; one measured around the start is re-measured as the pose improves.
@@ -193,6 +223,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
     start_scores = modality.scores(rotation, translation) if config.keep_better_start else None
+    prior = config.prior_information
     seen_at_end = None      # colours measured at the final poses, when an iteration did it
     for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
@@ -207,6 +238,9 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
         for _ in range(config.newton_steps):
             gradient, hessian = modality.gradient_hessian(rotation, translation, lines, scale,
                                                           sigma)
+            if any(prior):
+                gradient, hessian = start_prior(gradient, hessian, rotation, translation,
+                                                anchor_rotation, anchor_translation, *prior)
             apply_step(rotation, translation,
                        *newton_step(gradient, hessian, config.tikhonov_rotation,
                                     config.tikhonov_translation), active)

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
@@ -228,17 +229,27 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
                    seconds: float | None = None, seed: int = 0, threads: int | None = None,
                    export: Path | str | None = None, every: int = 500,
                    export_input_size: tuple[int, int] | None = None,
-                   progress: bool = True, device: str | torch.device = 'cpu') -> CenterBoxNet:
+                   progress: bool = True, device: str | torch.device = 'cpu',
+                   init: CenterBoxNet | None = None) -> CenterBoxNet:
     """
     Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise.
 
     A 'lite0' backbone starts from ImageNet and learns at ``settings.trunk_lr_scale`` times
     the head's rate (0: frozen). ``export_input_size``: (width, height) the ``export`` copy
-    is run at (multiples of 16), when not the cache's.
+    is run at (multiples of 16), when not the cache's. ``init``: a trained detector of the
+    same objects and architecture to start from instead (fine-tuning; a resumed run takes
+    its checkpoint's weights).
     """
     device = _prepare(run_dir, seed, threads, device)
     network = CenterBoxNet(config)
-    load_imagenet_trunks(network)
+    if init is None:
+        load_imagenet_trunks(network)
+    else:
+        try:
+            network.load_state_dict(init.state_dict())
+        except RuntimeError as err:
+            raise InputError(f'the detector to start from does not fit {config}: '
+                             f'{str(err).splitlines()[0]}') from err
     network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
@@ -246,7 +257,9 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
-                'device': device.device.type, 'cache_scenes': int(len(cache.images))}
+                'device': device.device.type, 'cache_scenes': int(len(cache.images)),
+                'init': None if init is None
+                else getattr(init, 'metadata', {}).get('training', {}).get('command')}
     run_loop(run_dir, network, optimizer,
              lambda step: detector_step(network, optimizer, batches, device), steps, seconds,
              settings.lr,
