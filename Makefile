@@ -114,6 +114,15 @@ weights: setup photos
 	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes480_upright4 \
 		--extra-cache $(CACHE)/scenes480_upright5 --run-dir $(CACHE)/runs/detector_lite0_480 \
 		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 2500 --every 500 \
+		--threads 1 --seed 7 --export $(CACHE)/runs/detector_lite0_480.pt \
+		--export-input-size 416,304
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
+		--scene-style table --seed 21 --scenes 3000 --input-size 480,352 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
+		--extra-cache $(CACHE)/scenes480_upright4 --run-dir $(CACHE)/runs/detector_table_ft \
+		--init $(CACHE)/runs/detector_lite0_480.pt --augment strong --lr 5e-4 \
+		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 1000 --every 250 \
 		--threads 1 --seed 7 --export bbpose_ros/weights/detector.pt \
 		--export-input-size 416,304
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright \
