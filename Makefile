@@ -133,7 +133,13 @@ weights: setup photos
 		--extra-cache $(CACHE)/crops96_upright6 --run-dir $(CACHE)/runs/qnet_lite0 \
 		--backbone lite0 --crop-size 64 --channels 64 --rotation-target allocentric \
 		--sign-invariant --hypotheses 8 --max-inplane-deg 45 --steps 6000 --every 500 \
-		--threads 1 --real-val --export bbpose_ros/weights/qnet.pt
+		--threads 1 --real-val --export $(CACHE)/runs/qnet_lite0.pt
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
+		--run-dir $(CACHE)/runs/qnet_table_ft --init $(CACHE)/runs/qnet_lite0.pt \
+		--augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --channels 64 \
+		--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
+		--steps 1500 --every 500 --threads 1 --seed 7 --real-val \
+		--export bbpose_ros/weights/qnet.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
 		--seed 3 --crops 24000 --crop-size 96 --dense-size 32 --backgrounds $(PHOTOS) \
 		--inplane-range-deg=-60,60

@@ -378,6 +378,6 @@ def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
             assert torch.allclose(start, end, atol=1e-6), name
     assert any(not torch.allclose(a, b) for a, b in zip(trained.parameters(),
                                                         fresh.parameters()))
-    with pytest.raises(InputError, match='does not fit'):
+    with pytest.raises(InputError, match='network to start from does not fit'):
         train_detector(cache, DetectorConfig(OBJECTS[:4]), settings, tmp_path / 'third', 1,
                        threads=1, progress=False, init=trained)

@@ -116,6 +116,7 @@ def add_parser(subparsers):
     _detector_options(sub.choices['detector'])
     qnet = sub.choices['qnet']
     _qnet_options(qnet)
+    _init_option(qnet)
     dense = sub.add_parser('dense', help='train the dense correspondence net',
                            description='Train the dense net (model coordinates, visible and '
                                        'amodal masks per cell of a crop) on crop caches '
@@ -161,6 +162,7 @@ def _augment_option(parser):
 
 def _detector_options(parser):
     _backbone_options(parser)
+    _init_option(parser)
     _augment_option(parser)
     parser.add_argument('--train-crop', type=_int_tuple, default=None, metavar='W,H',
                         help='training window in input pixels, multiples of 16 '
@@ -169,9 +171,12 @@ def _detector_options(parser):
                         help='input size recorded in the --export copy, multiples of 16: the '
                              'detector is fully convolutional and may run at another size '
                              "than the cache's (default: the cache's)")
+
+
+def _init_option(parser):
     parser.add_argument('--init', type=Path, default=None, metavar='WEIGHTS',
-                        help='start from this detector weight file (same objects and '
-                             '--backbone) instead of ImageNet: fine-tuning')
+                        help='start from this weight file of the same kind, objects and '
+                             'architecture instead of ImageNet: fine-tuning')
 
 
 def _backbone_options(parser):
@@ -187,6 +192,14 @@ def _backgrounds_option(parser):
     parser.add_argument('--backgrounds', type=Path, nargs='+', default=None, metavar='DIR',
                         help='folders of photographs used as backgrounds 70%% of the time '
                              '(default: procedural backgrounds only)')
+
+
+def _init(args, kind, objects):
+    """Load the trained network of ``--init`` (checked: kind, objects), or return None."""
+    if args.init is None:
+        return None
+    from bbpose_ros.core.pipeline.weights import load_network
+    return load_network(args.init, kind, list(objects))
 
 
 def _photos(args):
@@ -452,15 +465,11 @@ def run_detector(args):
             side <= 0 or side % 16 for side in export_size)):
         raise InputError('--export-input-size needs --export and W,H in multiples of 16, got '
                          f'{export_size}')
-    init = None
-    if args.init is not None:
-        from bbpose_ros.core.pipeline.weights import load_network
-        init = load_network(args.init, 'detector', list(models))
     train_detector(cache, config, settings, args.run_dir,
                    args.steps, _seconds(args), args.seed, args.threads, args.export,
                    args.every, device=device,
                    export_input_size=None if export_size is None else tuple(export_size),
-                   init=init)
+                   init=_init(args, 'detector', models))
     return 0
 
 
@@ -529,7 +538,7 @@ def run_qnet(args):
         real = RealCrops(BopDataset(args.dataset).frames(), config.objects, models)
     train_qnet(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
                args.seed, args.threads, args.export, args.every, real_crops=real,
-               device=device)
+               device=device, init=_init(args, 'qnet', models))
     return 0
 
 

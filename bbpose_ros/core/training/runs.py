@@ -122,7 +122,7 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
                steps: int, seconds: float | None = None, seed: int = 0,
                threads: int | None = None, export: Path | str | None = None, every: int = 500,
                progress: bool = True, real_crops: RealCrops | None = None,
-               device: str | torch.device = 'cpu') -> QNet:
+               device: str | torch.device = 'cpu', init: QNet | None = None) -> QNet:
     """
     Train (or resume) a Q-Net on a TrainingCache or CropCache; returns the network.
 
@@ -130,12 +130,14 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     ``loop.run_loop``. The weight file is written to ``run_dir/qnet.pt`` (and ``export``).
     ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation, measured
     on the CPU. ``device``: 'cpu' or 'cuda' (with mixed precision, see ``device.py``).
+    ``init``: a trained Q-Net of the same config to start from (``start_weights``).
     """
     device = _prepare(run_dir, seed, threads, device)
-    network, optimizer = _crop_network(QNet(config), settings, device)
+    network, optimizer = _crop_network(QNet(config), settings, device, init)
     batches = QNetBatches(cache, config, models, settings, seed)
     validation = {}
-    training = _crop_run_record(cache, settings, steps, seed, device)
+    training = dict(_crop_run_record(cache, settings, steps, seed, device),
+                    init=_init_command(init))
     run_loop(run_dir, network, optimizer,
              lambda step: qnet_step(network, optimizer, batches, device), steps, seconds,
              settings.lr,
@@ -182,9 +184,42 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
     return network
 
 
-def _crop_network(network, settings, device):
-    """Load a crop net's ImageNet trunk, put it on ``device``; return it and its AdamW."""
-    load_imagenet_trunks(network)
+def start_weights(network: torch.nn.Module, init: torch.nn.Module | None) -> torch.nn.Module:
+    """
+    Give a new network its starting weights: ImageNet trunks, or a trained network's.
+
+    Args:
+        network: the untrained network.
+        init: a trained network of the same kind, objects and architecture (fine-tuning),
+            or None: the ImageNet trunks of a 'lite0' backbone, the rest as initialised.
+
+    Returns:
+        ``network``, its weights set.
+
+    Raises:
+        InputError: ``init`` does not fit the network (other objects or architecture).
+
+    """
+    if init is None:
+        load_imagenet_trunks(network)
+        return network
+    try:
+        network.load_state_dict(init.state_dict())
+    except RuntimeError as err:
+        raise InputError(f'the network to start from does not fit {network.config}: '
+                         f'{str(err).splitlines()[0]}') from err
+    return network
+
+
+def _init_command(init):
+    """Return the training command of the network a run started from (None: ImageNet)."""
+    return None if init is None else getattr(init, 'metadata', {}).get('training', {}).get(
+        'command')
+
+
+def _crop_network(network, settings, device, init=None):
+    """Set a crop net's start (``start_weights``), put it on ``device``; return it and AdamW."""
+    start_weights(network, init)
     network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
@@ -241,15 +276,7 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     its checkpoint's weights).
     """
     device = _prepare(run_dir, seed, threads, device)
-    network = CenterBoxNet(config)
-    if init is None:
-        load_imagenet_trunks(network)
-    else:
-        try:
-            network.load_state_dict(init.state_dict())
-        except RuntimeError as err:
-            raise InputError(f'the detector to start from does not fit {config}: '
-                             f'{str(err).splitlines()[0]}') from err
+    network = start_weights(CenterBoxNet(config), init)
     network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
                                   settings.lr, weight_decay=settings.weight_decay)
@@ -258,8 +285,7 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
                 'settings': asdict(settings), 'total_steps': steps,
                 'device': device.device.type, 'cache_scenes': int(len(cache.images)),
-                'init': None if init is None
-                else getattr(init, 'metadata', {}).get('training', {}).get('command')}
+                'init': _init_command(init)}
     run_loop(run_dir, network, optimizer,
              lambda step: detector_step(network, optimizer, batches, device), steps, seconds,
              settings.lr,
