@@ -111,6 +111,8 @@ class RefinerConfig:
         if not (self.prior_rotation_deg >= 0.0 and self.prior_translation_m >= 0.0):
             raise InputError('start prior standard deviations must be >= 0 (0: no prior), '
                              f'got {self.prior_rotation_deg} deg, {self.prior_translation_m} m')
+        if not 0.0 <= self.mask_weight <= 1.0:
+            raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
 
     @property
     def prior_information(self) -> tuple[float, float]:
@@ -118,8 +120,6 @@ class RefinerConfig:
         rotation_rad = math.radians(self.prior_rotation_deg)
         return (1.0 / rotation_rad ** 2 if rotation_rad else 0.0,
                 1.0 / self.prior_translation_m ** 2 if self.prior_translation_m else 0.0)
-        if not 0.0 <= self.mask_weight <= 1.0:
-            raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,7 @@ def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectMode
     ``init``: a trained Q-Net of the same config to start from (``start_weights``).
     """
     device = _prepare(run_dir, seed, threads, device)
-    network, optimizer = _crop_network(QNet(config), settings, device, init)
+    network, optimizer = _start_network(QNet(config), settings, device, init)
     batches = QNetBatches(cache, config, models, settings, seed)
     validation = {}
     training = dict(_crop_run_record(cache, settings, steps, seed, device),
@@ -164,7 +164,7 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
     device = _prepare(run_dir, seed, threads, device)
     network = DenseNet(config)
     freeze_early_blocks(network, settings.frozen_blocks)
-    network, optimizer = _crop_network(network, settings, device)
+    network, optimizer = _start_network(network, settings, device)
     batches = DenseBatches(cache, config, models, settings, seed)
     validation = {}
     training = _crop_run_record(cache, settings, steps, seed, device)
@@ -217,8 +217,8 @@ def _init_command(init):
         'command')
 
 
-def _crop_network(network, settings, device, init=None):
-    """Set a crop net's start (``start_weights``), put it on ``device``; return it and AdamW."""
+def _start_network(network, settings, device, init=None):
+    """Set a network's start (``start_weights``), put it on ``device``; return it and AdamW."""
     start_weights(network, init)
     network = network.to(device.device, memory_format=torch.channels_last)
     optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
@@ -276,10 +276,7 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     its checkpoint's weights).
     """
     device = _prepare(run_dir, seed, threads, device)
-    network = start_weights(CenterBoxNet(config), init)
-    network = network.to(device.device, memory_format=torch.channels_last)
-    optimizer = torch.optim.AdamW(parameter_groups(network, settings.trunk_lr_scale),
-                                  settings.lr, weight_decay=settings.weight_decay)
+    network, optimizer = _start_network(CenterBoxNet(config), settings, device, init)
     batches = DetectorBatches(cache, config, settings, seed)
     validation = {}
     training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
