@@ -33,6 +33,7 @@ from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.refiner import refine_poses, RefinerConfig
+from bbpose_ros.core.refine.region_modality import MIN_VARIANCE, RegionModality
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at_rotation,
                                                     ViewpointModel)
@@ -439,3 +440,111 @@ def test_the_start_prior_holds_what_the_lines_hardly_constrain(viewpoint_models,
                for r, t in zip(kept, truths)) > 1e-3
     with pytest.raises(InputError, match='prior'):
         RefinerConfig(prior_translation_m=-1.0)
+
+
+def _frame_lines(viewpoint_models, lmo_frames, scale):
+    """Return the region modality, poses, lines and frame of a real frame's true poses."""
+    models, _ = viewpoint_models
+    frame = lmo_frames[0]
+    instances = [i for i in frame.instances if i.object_name in models]
+    rotation = np.stack([i.rotation for i in instances])
+    translation = np.stack([i.translation for i in instances])
+    modality = RegionModality([models[i.object_name] for i in instances],
+                              color_bins(frame.load_image()), frame.camera, 3.0)
+    hist_f, hist_b, _ = modality.line_colors(rotation, translation)
+    lines = modality.lines(rotation, translation, hist_f, hist_b, scale)
+    return modality, rotation, translation, lines, frame
+
+
+def test_line_colours_count_the_pixels_beside_each_contour(viewpoint_models, lmo_frames):
+    modality, rotation, translation, _, frame = _frame_lines(viewpoint_models, lmo_frames, 1)
+    hist_f, hist_b, seen = modality.line_colors(rotation, translation)
+    _, centres, normals, runs_f, runs_b, in_front = modality.project(rotation, translation)
+    bins = color_bins(frame.load_image())
+    height, width = bins.shape
+    for n in range(len(rotation)):
+        expected = []
+        for sign, runs in ((-1.0, runs_f), (1.0, runs_b)):
+            colours = []
+            for k in np.flatnonzero(in_front[n]):
+                for offset in np.arange(0.5, min(runs[n, k] - 1.0, 20.0), 2.0):
+                    u, v = (np.float32(centres[n, k] + 0.5)
+                            + np.float32(sign * offset) * normals[n, k].astype(np.float32))
+                    if 0 <= u < width and 0 <= v < height:
+                        colours.append(bins[int(v), int(u)])
+            expected.append(np.bincount(colours, minlength=hist_f.shape[1]) / len(colours))
+        np.testing.assert_allclose(hist_f[n], expected[0], atol=1e-12)
+        np.testing.assert_allclose(hist_b[n], expected[1], atol=1e-12)
+        assert seen[n]
+
+
+def test_lines_find_a_colour_step_where_it_is():
+    # A red object left of the pixel edge u = 299.5 on a blue ground; the colour model knows
+    # both colours.
+    camera = CameraIntrinsics(500.0, 500.0, 199.5, 239.5, 640, 480)
+    image = np.zeros((camera.height, camera.width, 3), np.uint8)
+    image[:, :300] = (200, 30, 30)
+    image[:, 300:] = (30, 30, 200)
+    bins = color_bins(image)
+    hist_f, hist_b = np.zeros((1, 4096)), np.zeros((1, 4096))
+    hist_f[0, bins[0, 0]], hist_b[0, bins[0, -1]] = 1.0, 1.0
+    # A model's straight right side seen head-on, projected at u = 299.5 + shift_px.
+    model = ViewpointModel(np.array([[0.0, 0.0, -1.0]]),
+                           np.array([[[0.05, y, 0.0] for y in np.linspace(-0.05, 0.05, 20)]],
+                                    np.float32),
+                           np.tile(np.float32([1.0, 0.0, 0.0]), (1, 20, 1)),
+                           np.full((1, 20), 0.1, np.float32), np.full((1, 20), 0.1, np.float32),
+                           0.14)
+    for shift_px, scale in ((0.2, 1), (3.3, 1), (-4.0, 2), (9.0, 6), (-10.6, 4)):
+        depth = 0.05 * camera.fx / (299.5 + shift_px - camera.cx)
+        modality = RegionModality([model], bins, camera, 3.0)
+        lines = modality.lines(np.eye(3)[None], np.array([[0.0, 0.0, depth]]), hist_f,
+                               hist_b, scale)
+        assert lines.valid.all()
+        # The step lies shift_px / scale segments inside the projected contour; a sharp one
+        # is placed between two segments (the distribution's positions are half-integers).
+        np.testing.assert_allclose(lines.mean, -shift_px / scale, atol=0.52)
+
+
+def test_line_pull_is_the_derivative_of_the_contour_offsets(viewpoint_models, lmo_frames):
+    modality, rotation, translation, lines, frame = _frame_lines(viewpoint_models, lmo_frames,
+                                                                 2)
+    scale, sigma = 2, 3.5
+    gradient, hessian = modality.gradient_hessian(rotation, translation, lines, scale, sigma)
+    camera = frame.camera
+
+    def offsets(n, theta):
+        """(P,) each line's projected point along its normal, segments, after theta."""
+        turned = rotation[n] @ exp_so3(theta[:3])
+        points = lines.points_model[n] @ turned.T + translation[n] + rotation[n] @ theta[3:]
+        uv = np.stack([camera.fx * points[:, 0] / points[:, 2] + camera.cx,
+                       camera.fy * points[:, 1] / points[:, 2] + camera.cy], axis=1)
+        return np.sum((uv - lines.centres_uv[n]) * lines.normals_uv[n], axis=1) / scale
+
+    for n in range(len(rotation)):
+        steps = np.eye(6) * np.array([1e-5] * 3 + [1e-6] * 3)
+        jacobian = np.stack([(offsets(n, h) - offsets(n, -h)) / (2 * h.max())
+                             for h in steps], axis=1)
+        weight = np.where(lines.valid[n], MIN_VARIANCE / (sigma / scale) ** 2
+                          / lines.variance[n], 0.0)
+        residual = lines.mean[n] - offsets(n, np.zeros(6))
+        np.testing.assert_allclose(gradient[n], (weight * residual) @ jacobian,
+                                   rtol=1e-4, atol=1e-6 * np.abs(gradient[n]).max())
+        np.testing.assert_allclose(hessian[n], (jacobian * weight[:, None]).T @ jacobian,
+                                   rtol=1e-4, atol=1e-6 * np.abs(hessian[n]).max())
+
+
+def test_threads_split_the_poses_without_changing_them(viewpoint_models, lmo_frames):
+    models, _ = viewpoint_models
+    frame = lmo_frames[3]
+    instances = [i for i in frame.instances if i.object_name in models]
+    rng = np.random.default_rng(7)
+    starts = [perturb_pose(i.rotation, i.translation, 10.0, 0.01, rng) for i in instances]
+    runs = [refine_poses(color_bins(frame.load_image()), frame.camera,
+                         [models[i.object_name] for i in instances], [r for r, _ in starts],
+                         [t for _, t in starts], RefinerConfig(threads=threads))
+            for threads in (1, 2)]
+    for one, two in zip(*runs):
+        assert one.status == two.status == 'ok'
+        np.testing.assert_array_equal(one.rotation, two.rotation)
+        np.testing.assert_array_equal(one.translation, two.translation)

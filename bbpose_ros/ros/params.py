@@ -188,6 +188,9 @@ PARAMETERS = {
         'far corrections alike); 0: none.'),
     'refine_prior_mm': option_spec(
         'refine_prior_mm', "The same for the start's translation, millimetres; 0: none."),
+    'refine_threads': option_spec(
+        'refine_threads', "Threads the refinement's per-line loops run on, split by pose; 0: "
+        'one per core.'),
     'pose_source': option_spec(
         'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
         'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '

@@ -54,34 +54,12 @@ class ForegroundMasks:
     squares_uv: np.ndarray
 
     @cached_property
-    def _log_odds_table(self) -> np.ndarray:
-        """(N * M * M,) float32 log-odds of the cells, made once for all iterations."""
+    def log_odds_grid(self) -> np.ndarray:
+        """(N, M, M) float32 log-odds of the cells, made once for all iterations."""
         p = np.clip(self.probabilities, EPSILON, 1.0 - EPSILON)
-        return np.log(p / (1.0 - p)).astype(np.float32).ravel()
+        return np.log(p / (1.0 - p)).astype(np.float32)
 
     def take(self, indices: Sequence[int]) -> 'ForegroundMasks':
         """Return the masks of the given poses, in that order."""
         indices = np.asarray(indices, dtype=np.int64)
         return ForegroundMasks(self.probabilities[indices], self.squares_uv[indices])
-
-    def log_odds(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """
-        Foreground log-odds at pixels, per pose: the cell each pixel centre falls in.
-
-        Args:
-            cols, rows: (N, ...) integer pixel columns and rows, one leading row per pose.
-
-        Returns:
-            (N, ...) float32 log-odds; OUTSIDE_LOG_ODDS outside a square.
-
-        """
-        count, size = self.probabilities.shape[:2]
-        shape = (count, *([1] * (cols.ndim - 1)))
-        squares = self.squares_uv.astype(np.float64).reshape(*shape, 4)
-        cell = size / (squares[..., 2] - squares[..., 0])
-        i = np.floor((cols - squares[..., 0]) * cell).astype(np.int64)
-        j = np.floor((rows - squares[..., 1]) * cell).astype(np.int64)
-        inside = (i >= 0) & (i < size) & (j >= 0) & (j < size)
-        pose = np.arange(count).reshape(shape)
-        index = (pose * size + np.clip(j, 0, size - 1)) * size + np.clip(i, 0, size - 1)
-        return np.where(inside, self._log_odds_table[index], np.float32(OUTSIDE_LOG_ODDS))

@@ -41,6 +41,7 @@ import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.refine import line_kernels
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import apply_step, newton_step, start_prior
@@ -79,6 +80,8 @@ class RefinerConfig:
             the contour hardly constrains (an out-of-plane turn of a round object) then stay
             near the start instead of drifting with the lines' noise; a far start moves less.
         prior_translation_m: the same for the translation, metres (depth, mostly).
+        threads: threads the per-line loops run on, split by pose (``line_kernels``);
+            0: one per core.
 
     """
 
@@ -94,6 +97,7 @@ class RefinerConfig:
     keep_better_start: bool = True
     prior_rotation_deg: float = 0.0
     prior_translation_m: float = 0.0
+    threads: int = 0
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -113,6 +117,9 @@ class RefinerConfig:
                              f'got {self.prior_rotation_deg} deg, {self.prior_translation_m} m')
         if not 0.0 <= self.mask_weight <= 1.0:
             raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
+        if self.threads < 0:
+            raise InputError(f'refinement threads must be >= 0 (0: one per core), got '
+                             f'{self.threads}')
 
     @property
     def prior_information(self) -> tuple[float, float]:
@@ -198,6 +205,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                          f'{camera.width}x{camera.height}')
     if count == 0:
         return []
+    line_kernels.use_threads(config.threads)
     start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
     start_translation = np.array(translations, dtype=float).reshape(count, 3)
     rotation, translation = start_rotation.copy(), start_translation.copy()
@@ -249,10 +257,11 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             active &= ~behind
         if config.histogram_rate > 0.0:
             seen_at_end = seen_f, seen_b, seen = modality.line_colors(rotation, translation)
-            update = active & seen & learning
+            update = (active & seen & learning)[:, None]
             rate = config.histogram_rate
-            hist_f[update] = (1.0 - rate) * hist_f[update] + rate * seen_f[update]
-            hist_b[update] = (1.0 - rate) * hist_b[update] + rate * seen_b[update]
+            for model, now in ((hist_f, seen_f), (hist_b, seen_b)):
+                np.copyto(model, now if rate == 1.0 else (1.0 - rate) * model + rate * now,
+                          where=update)
     scores = modality.scores(rotation, translation)
     if start_scores is not None:        # a refinement that lowers the score is not taken
         back = (status == 'ok') & (start_scores > scores)

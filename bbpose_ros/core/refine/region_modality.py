@@ -39,8 +39,9 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.refine import line_kernels
 from bbpose_ros.core.refine.color_histograms import BINS_PER_CHANNEL
-from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks, OUTSIDE_LOG_ODDS
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 FUNCTION_LENGTH = 8         # segments of the smoothed step function
@@ -74,12 +75,14 @@ def _step_functions():
 
 _H_F, _H_B = _step_functions()
 _H_B32, _H_DIFF32 = _H_B.astype(np.float32), (_H_F - _H_B).astype(np.float32)
-_WINDOWS = np.arange(DISTRIBUTION_LENGTH)[:, None] + np.arange(FUNCTION_LENGTH)[None, :]
 MIN_VARIANCE = max(1.0 / (2.0 * math.atanh(2.0 * FUNCTION_AMPLITUDE) ** 2), FUNCTION_SLOPE)
 _POSITIONS = np.arange(DISTRIBUTION_LENGTH) - (DISTRIBUTION_LENGTH - 1) / 2.0
 _NEAR = np.abs(_POSITIONS) <= AGREEMENT_PX
 _BINS = BINS_PER_CHANNEL ** 3
 _MAX_LOG_RATIO = math.log((1.0 - 1e-4) / 1e-4)
+_HISTOGRAM_OFFSETS = np.arange(0.5, MAX_HISTOGRAM_RUN_PX, HISTOGRAM_STRIDE_PX,
+                               dtype=np.float32)
+_NO_MASKS, _NO_SQUARES = np.zeros((0, 1, 1), dtype=np.float32), np.zeros((0, 4))
 
 
 class RegionModality:
@@ -126,24 +129,19 @@ class RegionModality:
         key = np.concatenate([rotation.ravel(), translation.ravel()])
         if self._projected is not None and np.array_equal(key, self._projected[0]):
             return self._projected[1]
-        points, normals_model, runs_f, runs_b = (
-            np.empty((len(rotation), self.lines_per_view) + tail, dtype=np.float32)
-            for tail in ((3,), (3,), (), ()))
-        for model, poses in self.groups:
-            views = model.closest_views(rotation[poses], translation[poses])
-            points[poses], normals_model[poses] = model.points[views], model.normals[views]
-            runs_f[poses], runs_b[poses] = model.foreground_m[views], model.background_m[views]
+        count, lines = len(rotation), self.lines_per_view
+        points = np.empty((count, lines, 3), dtype=np.float32)
+        centres, normals = np.empty((count, lines, 2)), np.empty((count, lines, 2))
+        runs_f, runs_b = np.empty((count, lines)), np.empty((count, lines))
+        in_front = np.empty((count, lines), dtype=bool)
         camera = self.camera
-        points_cam = points @ rotation.transpose(0, 2, 1) + translation[:, None, :]
-        z = points_cam[..., 2]
-        in_front = z > 1e-6
-        safe_z = np.where(in_front, z, 1e-6)
-        centres = np.stack([camera.fx * points_cam[..., 0] / safe_z + camera.cx,
-                            camera.fy * points_cam[..., 1] / safe_z + camera.cy], axis=-1)
-        normals = normals_model @ rotation[:, :2, :].transpose(0, 2, 1)
-        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-9)
-        px_per_m = camera.fx / safe_z
-        projected = points, centres, normals, runs_f * px_per_m, runs_b * px_per_m, in_front
+        for model, poses in self.groups:
+            line_kernels.project_contours(
+                model.points, model.normals, model.foreground_m, model.background_m,
+                model.closest_views(rotation[poses], translation[poses]), poses, rotation,
+                translation, camera.fx, camera.fy, camera.cx, camera.cy, points, centres,
+                normals, runs_f, runs_b, in_front)
+        projected = points, centres, normals, runs_f, runs_b, in_front
         for array in projected:
             array.flags.writeable = False       # shared with the next caller at this pose
         self._projected = key, projected
@@ -160,33 +158,17 @@ class RegionModality:
         _, centres, normals, runs_f, runs_b, in_front = self.project(rotation, translation)
         if chosen is not None:
             in_front = in_front & chosen
-        offsets = np.arange(0.5, MAX_HISTOGRAM_RUN_PX, HISTOGRAM_STRIDE_PX)
-        counts = []
-        for sign, runs in ((-1.0, runs_f), (1.0, runs_b)):
-            keep = (offsets < np.minimum(runs - 1.0, MAX_HISTOGRAM_RUN_PX)[..., None]) \
-                & in_front[..., None]
-            cols, rows = (np.floor(_along_lines(centres[..., axis] + 0.5, normals[..., axis],
-                                                sign * offsets)).astype(np.int64)
-                          for axis in (0, 1))
-            keep &= (cols >= 0) & (cols < self.camera.width) & (rows >= 0) \
-                & (rows < self.camera.height)
-            pose = np.broadcast_to(np.arange(len(rotation))[:, None, None], keep.shape)
-            bins = self.bins[rows[keep] * self.camera.width + cols[keep]]
-            counts.append(np.bincount(pose[keep] * _BINS + bins,
-                                      minlength=len(rotation) * _BINS
-                                      ).reshape(len(rotation), _BINS).astype(float))
-        totals = [c.sum(axis=1, keepdims=True) for c in counts]
-        enough = (totals[0][:, 0] >= 10) & (totals[1][:, 0] >= 10)
-        return (counts[0] / np.maximum(totals[0], 1.0), counts[1] / np.maximum(totals[1], 1.0),
-                enough)
+        hist_f, hist_b, totals = line_kernels.line_color_histograms(
+            self.bins, self.camera.width, self.camera.height, centres, normals, runs_f, runs_b,
+            in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS)
+        return hist_f, hist_b, (totals >= 10).all(axis=1)
 
     def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None):
         """Sample the correspondence lines of every pose at ``scale`` (see CorrespondenceLines)."""
         points, centres, normals, runs_f, runs_b, in_front = self.project(rotation,
                                                                           translation)
         camera = self.camera
-        length = LINE_SEGMENTS * scale
-        half = (length - 1) / 2.0
+        half = (LINE_SEGMENTS * scale - 1) / 2.0
         # A line is straight: it lies on the image when both its end pixels do.
         ends = np.stack([centres - half * normals, centres + half * normals])
         on_image = np.all((ends[..., 0] >= -0.5) & (ends[..., 0] < camera.width - 0.5)
@@ -195,35 +177,14 @@ class RegionModality:
         valid = in_front & (np.minimum(runs_f, runs_b) >= self.min_continuous_px) & on_image
         if chosen is not None:
             valid &= chosen
-        # Valid lines have coordinates >= -0.5, so truncating u + 0.5 rounds to the nearest
-        # pixel; invalid ones are clipped into the image and ignored.
-        cols, rows = (np.clip(_along_lines(centres[..., axis] + 0.5, normals[..., axis],
-                                           np.arange(length) - half).astype(np.int32),
-                              0, size - 1)
-                      for axis, size in enumerate((camera.width, camera.height)))
-        line_bins = self.bins[rows * camera.width + cols]
-        # log(p_f / (1 - p_f)) with p_f = f / (f + b) clipped to [1e-4, 1 - 1e-4]; 0 for a
-        # colour neither histogram has seen. In float64: a track's blended histograms keep
-        # bins far below float32's range.
-        tiny = np.finfo(float).tiny
-        log_ratio_table = np.clip(np.log(hist_f + tiny) - np.log(hist_b + tiny),
-                                  -_MAX_LOG_RATIO, _MAX_LOG_RATIO).astype(np.float32).ravel()
-        pose = np.arange(len(rotation))[:, None, None] * _BINS
-        pixel_log_ratio = log_ratio_table[pose + line_bins]
-        if self.masks is not None:
-            weight = np.float32(self.mask_weight)
-            pixel_log_ratio = (1.0 - weight) * pixel_log_ratio \
-                + weight * self.masks.log_odds(cols, rows)
-        log_ratio = pixel_log_ratio.reshape(*valid.shape, LINE_SEGMENTS, scale).sum(axis=-1)
-        seg_f = 1.0 / (1.0 + np.exp(-np.clip(log_ratio, -50.0, 50.0)))
-        # h_f * p_f + h_b * (1 - p_f) = h_b + (h_f - h_b) * p_f, in float32 (the biggest array)
-        terms = _H_B32 + seg_f[..., _WINDOWS] * _H_DIFF32
-        log_distribution = np.log(terms).sum(axis=-1, dtype=np.float64)
-        log_distribution -= log_distribution.max(axis=-1, keepdims=True)
-        distribution = np.exp(log_distribution)
-        distribution /= distribution.sum(axis=-1, keepdims=True)
-        mean = distribution @ _POSITIONS
-        variance = np.maximum(distribution @ _POSITIONS ** 2 - mean ** 2, MIN_VARIANCE)
+        masks = self.masks
+        mean, variance, distribution = line_kernels.contour_distributions(
+            self.bins, camera.width, camera.height, centres, normals, valid,
+            np.asarray(hist_f, dtype=np.float64), np.asarray(hist_b, dtype=np.float64), scale,
+            LINE_SEGMENTS, _H_B32, _H_DIFF32, _POSITIONS, MIN_VARIANCE, _MAX_LOG_RATIO,
+            _NO_MASKS if masks is None else masks.log_odds_grid,
+            _NO_SQUARES if masks is None else masks.squares_uv.astype(np.float64),
+            np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS))
         return CorrespondenceLines(valid, points, centres, normals, mean, variance, distribution)
 
     def scores(self, rotation, translation):
@@ -252,31 +213,7 @@ class RegionModality:
         expected contour error in pixels). ``optimizer.newton_step`` adds the damping.
         """
         camera = self.camera
-        points_cam = lines.points_model @ rotation.transpose(0, 2, 1) + translation[:, None, :]
-        x, y, z = np.moveaxis(points_cam, -1, 0)
-        z = np.where(np.abs(z) > 1e-6, z, 1e-6)
-        fx_z, fy_z = camera.fx / z, camera.fy / z
-        u = x * fx_z + camera.cx
-        v = y * fy_z + camera.cy
-        n_u, n_v = lines.normals_uv[..., 0], lines.normals_uv[..., 1]
-        delta = (n_u * (u - lines.centres_uv[..., 0])
-                 + n_v * (v - lines.centres_uv[..., 1])) / scale
-        d_centre = np.stack([n_u * fx_z, n_v * fy_z, -(n_u * x * fx_z + n_v * y * fy_z) / z],
-                            axis=-1) / scale
-        d_translation = d_centre @ rotation
-        jacobian = np.concatenate([np.cross(lines.points_model, d_translation),
-                                   d_translation], axis=-1)
-        weight = np.where(lines.valid, MIN_VARIANCE / (sigma / scale) ** 2 / lines.variance,
-                          0.0)
-        weighted = jacobian * weight[..., None]
-        gradient = ((lines.mean - delta)[:, None, :] @ weighted)[:, 0]
-        hessian = np.matmul(weighted.transpose(0, 2, 1), jacobian)
-        return gradient, hessian
-
-
-def _along_lines(starts, directions, offsets):
-    """(N, P, L) float32 coordinates starts + offsets * directions of (N, P) lines."""
-    # One image axis at a time: numpy broadcasts over a trailing (u, v) axis of length 2
-    # in many short inner loops, much slower.
-    return starts.astype(np.float32)[..., None] \
-        + directions.astype(np.float32)[..., None] * np.asarray(offsets, dtype=np.float32)
+        return line_kernels.gradient_hessian(
+            rotation, translation, lines.points_model, lines.centres_uv, lines.normals_uv,
+            lines.valid, lines.mean, lines.variance, scale,
+            MIN_VARIANCE / (sigma / scale) ** 2, camera.fx, camera.fy, camera.cx, camera.cy)

@@ -1,0 +1,329 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The region modality's per-line loops, compiled with numba.
+
+Every correspondence iteration walks each of a few thousand lines pixel by pixel; as numpy
+broadcasts that took many large temporary arrays a call, so these loops run compiled
+(``numba.njit``, cached on disk after the first compilation) and touch each pixel once.
+``region_modality`` owns the method; these kernels only evaluate it:
+
+* ``project_contours``: the contour points of each pose's closest view, projected;
+* ``contour_distributions``: along each line, the segments' foreground probabilities from
+  the colour model (and a predicted mask), then the discrete distribution of where the
+  contour lies on the line, its mean and variance;
+* ``line_color_histograms``: the colour histograms just inside and outside each contour;
+* ``gradient_hessian``: each pose's Gauss-Newton gradient and Hessian from its lines.
+
+Conventions are the modality's: pixel coordinates continuous with pixel centres at
+integers, a sample at (u, v) reads pixel (floor(u + 0.5), floor(v + 0.5)); the image is the
+flat (H * W,) array of its colour bins, row-major. The per-pose loops run in parallel over
+the poses (``use_threads``).
+"""
+
+import math
+
+import numba
+import numpy as np
+
+# Fast-math without 'nnan' / 'ninf': the colour loops test for NaN coordinates.
+_NUMBA = {'cache': True, 'nogil': True, 'error_model': 'numpy',
+          'fastmath': {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}}
+
+
+def use_threads(count: int) -> None:
+    """Run this thread's kernels on ``count`` threads (0: one per core, numba's default)."""
+    numba.set_num_threads(min(count, numba.config.NUMBA_NUM_THREADS) if count > 0
+                          else numba.config.NUMBA_NUM_THREADS)
+
+
+@numba.njit(**_NUMBA)
+def project_contours(view_points, view_normals, view_runs_f, view_runs_b, views, poses,
+                     rotation, translation, fx, fy, cx, cy, points, centres, normals, runs_f,
+                     runs_b, in_front):
+    """
+    Project the contour of one object's chosen views at its poses, into the outputs.
+
+    Args:
+        view_points, view_normals: (V, P, 3) float32 the viewpoint model's contour points
+            and outward normals, model frame.
+        view_runs_f, view_runs_b: (V, P) float32 its run lengths inwards and outwards, metres.
+        views: (M,) the view of each of the object's poses.
+        poses: (M,) where those poses sit in the outputs.
+        rotation, translation: (N, 3, 3), (N, 3) all poses (metres).
+        fx, fy, cx, cy: camera intrinsics, pixels.
+        points: (N, P, 3) float32 out: the views' contour points, model frame.
+        centres: (N, P, 2) float64 out: projected (u, v); in front or not.
+        normals: (N, P, 2) float64 out: unit 2D normals (u, v).
+        runs_f, runs_b: (N, P) float64 out: run lengths in pixels at the point's depth.
+        in_front: (N, P) bool out: depth > 1e-6 m.
+
+    """
+    lines = view_points.shape[1]
+    for m in range(poses.shape[0]):
+        n, view = poses[m], views[m]
+        r, t = rotation[n], translation[n]
+        for k in range(lines):
+            point, normal = view_points[view, k], view_normals[view, k]
+            px, py, pz = point[0], point[1], point[2]
+            points[n, k, :] = point
+            x = r[0, 0] * px + r[0, 1] * py + r[0, 2] * pz + t[0]
+            y = r[1, 0] * px + r[1, 1] * py + r[1, 2] * pz + t[1]
+            z = r[2, 0] * px + r[2, 1] * py + r[2, 2] * pz + t[2]
+            in_front[n, k] = z > 1e-6
+            if not z > 1e-6:
+                z = 1e-6
+            centres[n, k, 0] = fx * x / z + cx
+            centres[n, k, 1] = fy * y / z + cy
+            nx, ny, nz = normal[0], normal[1], normal[2]
+            nu = r[0, 0] * nx + r[0, 1] * ny + r[0, 2] * nz
+            nv = r[1, 0] * nx + r[1, 1] * ny + r[1, 2] * nz
+            norm = max(math.sqrt(nu * nu + nv * nv), 1e-9)
+            normals[n, k, 0], normals[n, k, 1] = nu / norm, nv / norm
+            px_per_m = fx / z
+            runs_f[n, k] = view_runs_f[view, k] * px_per_m
+            runs_b[n, k] = view_runs_b[view, k] * px_per_m
+
+
+@numba.njit(**_NUMBA)
+def _mask_log_odds(mask_log_odds, squares, pose, col, row, outside):
+    """Log-odds of the mask cell that pixel (col, row) falls in, ``outside`` beyond it."""
+    size = mask_log_odds.shape[1]
+    u0, v0 = squares[pose, 0], squares[pose, 1]
+    cell = size / (squares[pose, 2] - u0)
+    i = math.floor((col - u0) * cell)
+    j = math.floor((row - v0) * cell)
+    if i < 0 or i >= size or j < 0 or j >= size:
+        return outside
+    return mask_log_odds[pose, j, i]
+
+
+@numba.njit(parallel=True, **_NUMBA)
+def contour_distributions(bins, width, height, centres, normals, valid, hist_f, hist_b, scale,
+                          segments, h_b, h_diff, positions, min_variance, max_log_ratio,
+                          mask_log_odds, mask_squares, mask_weight, mask_outside):
+    """
+    Where the contour lies on each line: (N, P) mean, (N, P) variance, (N, P, D) distribution.
+
+    Args:
+        bins: (H * W,) uint16 colour bins of the image, row-major.
+        width, height: image size, pixels.
+        centres: (N, P, 2) float64 projected contour points (u, v).
+        normals: (N, P, 2) unit outward normals (u, v), taken in float32.
+        valid: (N, P) bool lines to evaluate; the others get the uniform distribution.
+        hist_f, hist_b: (N, BINS) float64 colour histograms of each pose.
+        scale: pixels per segment.
+        segments: segments per line (the step function's length + D - 1).
+        h_b, h_diff: (F,) float32 the step function's background term and h_f - h_b.
+        positions: (D,) float64 contour positions, segments from the line's centre.
+        min_variance: the variance's floor, segments squared.
+        max_log_ratio: bound of a colour's foreground log-odds.
+        mask_log_odds: (N, M, M) float32 per-pose mask log-odds, or (0, 1, 1): no masks.
+        mask_squares: (N, 4) float64 each mask's square [u0, v0, u1, v1].
+        mask_weight: float32 weight of the mask against the colours.
+        mask_outside: float32 log-odds outside a mask's square.
+
+    Line k of pose n samples, for segment s and pixel i, the point centre + (s * scale + i
+    - half) * normal with half = (segments * scale - 1) / 2, in float32; a segment's
+    foreground probability is the sigmoid of its pixels' summed log-odds.
+
+    """
+    count, lines = centres.shape[0], centres.shape[1]
+    functions, distributions = h_b.shape[0], positions.shape[0]
+    use_masks = mask_log_odds.shape[0] > 0
+    keep = np.float32(1.0) - mask_weight
+    tiny = np.finfo(np.float64).tiny
+    half = (segments * scale - 1) / 2.0
+    offsets = np.empty(segments * scale, dtype=np.float32)
+    for i in range(segments * scale):
+        offsets[i] = np.float32(i - half)
+    mean = np.empty((count, lines))
+    variance = np.empty((count, lines))
+    distribution = np.empty((count, lines, distributions))
+    bin_count = hist_f.shape[1]
+    last_pixel = width * height - 1
+    for n in numba.prange(count):
+        seg_f = np.empty(segments, dtype=np.float32)
+        log_ratio = np.empty(bin_count, dtype=np.float32)
+        # log(p_f / (1 - p_f)) with p_f = f / (f + b) per colour bin, clipped; 0 for a
+        # colour neither histogram has seen (most of them: a histogram holds a few hundred).
+        for b in range(bin_count):
+            f, g = hist_f[n, b], hist_b[n, b]
+            log_ratio[b] = 0.0 if f == 0.0 and g == 0.0 else min(max(
+                math.log(f + tiny) - math.log(g + tiny), -max_log_ratio), max_log_ratio)
+        for k in range(lines):
+            if not valid[n, k]:
+                distribution[n, k, :] = 1.0 / distributions
+                mean[n, k], variance[n, k] = 0.0, min_variance
+                continue
+            start_u = np.float32(centres[n, k, 0] + 0.5)
+            start_v = np.float32(centres[n, k, 1] + 0.5)
+            step_u, step_v = np.float32(normals[n, k, 0]), np.float32(normals[n, k, 1])
+            for s in range(segments):
+                total = np.float32(0.0)
+                for i in range(s * scale, (s + 1) * scale):
+                    # A valid line lies on the image (>= -0.5 before the shift, truncation
+                    # rounds); the guard only keeps a float32 rounding at the last pixel in.
+                    col = int(start_u + step_u * offsets[i])
+                    row = int(start_v + step_v * offsets[i])
+                    value = log_ratio[bins[min(row * width + col, last_pixel)]]
+                    if use_masks:
+                        value = keep * value + mask_weight * _mask_log_odds(
+                            mask_log_odds, mask_squares, n, col, row, mask_outside)
+                    total += value
+                total = min(max(total, np.float32(-50.0)), np.float32(50.0))
+                seg_f[s] = np.float32(1.0) / (np.float32(1.0) + np.exp(-total))
+            # p(contour at d) ~ prod_j (h_b[j] + seg_f[d + j] * h_diff[j]): each factor lies
+            # in [h_b, h_f], bounded away from 0, so the product needs no logarithms.
+            norm = 0.0
+            for d in range(distributions):
+                p = 1.0
+                for j in range(functions):
+                    p *= np.float64(h_b[j] + seg_f[d + j] * h_diff[j])
+                distribution[n, k, d] = p
+                norm += p
+            first = second = 0.0
+            for d in range(distributions):
+                p = distribution[n, k, d] / norm
+                distribution[n, k, d] = p
+                first += p * positions[d]
+                second += p * positions[d] * positions[d]
+            mean[n, k] = first
+            variance[n, k] = max(second - first * first, min_variance)
+    return mean, variance, distribution
+
+
+@numba.njit(parallel=True, **_NUMBA)
+def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b, seen,
+                          offsets, max_run, bin_count):
+    """
+    Colour histograms on each pose's lines, inside and outside the contour.
+
+    Returns:
+        ((N, BINS) float64 inside, (N, BINS) outside: frequencies summing to 1, or all 0;
+        (N, 2) int64 pixels counted inside and outside).
+
+    Args:
+        bins: (H * W,) uint16 colour bins of the image, row-major.
+        width, height: image size, pixels.
+        centres: (N, P, 2) float64 projected contour points.
+        normals: (N, P, 2) unit outward normals, taken in float32.
+        runs_f, runs_b: (N, P) pixels the silhouette continues inwards and the background
+            outwards.
+        seen: (N, P) bool lines to count.
+        offsets: (K,) float32 distances from the contour sampled, pixels.
+        max_run: samples lie closer than min(run - 1, max_run) to the contour.
+        bin_count: colour bins (BINS).
+
+    A sample at distance o reads pixel floor(centre + 0.5 -+ o * normal) (inside: minus),
+    when it lies in the image.
+
+    """
+    count, lines = centres.shape[0], centres.shape[1]
+    totals = np.zeros((count, 2), dtype=np.int64)
+    hist_f = np.zeros((count, bin_count))
+    hist_b = np.zeros((count, bin_count))
+    for n in numba.prange(count):
+        counts = np.zeros((2, bin_count), dtype=np.int32)
+        for k in range(lines):
+            if not seen[n, k]:
+                continue
+            start_u = np.float32(centres[n, k, 0] + 0.5)
+            start_v = np.float32(centres[n, k, 1] + 0.5)
+            for side in range(2):
+                sign = np.float32(-1.0) if side == 0 else np.float32(1.0)
+                reach = min((runs_f[n, k] if side == 0 else runs_b[n, k]) - 1.0, max_run)
+                step_u = sign * np.float32(normals[n, k, 0])
+                step_v = sign * np.float32(normals[n, k, 1])
+                for offset in offsets:
+                    if not offset < reach:
+                        break
+                    u = start_u + step_u * offset
+                    v = start_v + step_v * offset
+                    if not (u >= 0.0 and v >= 0.0 and u < width and v < height):
+                        continue        # off the image (or not finite)
+                    counts[side, bins[int(v) * width + int(u)]] += 1
+        totals[n, 0], totals[n, 1] = counts[0].sum(), counts[1].sum()
+        for b in range(bin_count):
+            if counts[0, b]:
+                hist_f[n, b] = counts[0, b] / totals[n, 0]
+            if counts[1, b]:
+                hist_b[n, b] = counts[1, b] / totals[n, 1]
+    return hist_f, hist_b, totals
+
+
+@numba.njit(parallel=True, **_NUMBA)
+def gradient_hessian(rotation, translation, points_model, centres, normals, valid, mean,
+                     variance, scale, weight_scale, fx, fy, cx, cy):
+    """
+    Each pose's pull from its lines: (N, 6) gradient, (N, 6, 6) Gauss-Newton Hessian.
+
+    Args:
+        rotation: (N, 3, 3) model-to-camera rotations.
+        translation: (N, 3) translations, metres.
+        points_model: (N, P, 3) contour points, model frame, metres.
+        centres: (N, P, 2) projected contour points when the lines were made.
+        normals: (N, P, 2) unit outward normals of the lines.
+        valid: (N, P) bool lines that count.
+        mean, variance: (N, P) the contour distribution's, segments and segments squared.
+        scale: pixels per segment.
+        weight_scale: a line's weight is weight_scale / variance.
+        fx, fy, cx, cy: camera intrinsics, pixels.
+
+    Over the increment (rotation vector, translation, both in the model frame), each
+    valid line's projected point moves along its normal by J . theta segments; its residual
+    is mean - (its offset from the centre, in segments).
+
+    """
+    count, lines = points_model.shape[0], points_model.shape[1]
+    gradient = np.zeros((count, 6))
+    hessian = np.zeros((count, 6, 6))
+    for n in numba.prange(count):
+        jacobian = np.empty(6)
+        r = rotation[n]
+        for k in range(lines):
+            if not valid[n, k]:
+                continue
+            px, py, pz = points_model[n, k, 0], points_model[n, k, 1], points_model[n, k, 2]
+            x = r[0, 0] * px + r[0, 1] * py + r[0, 2] * pz + translation[n, 0]
+            y = r[1, 0] * px + r[1, 1] * py + r[1, 2] * pz + translation[n, 1]
+            z = r[2, 0] * px + r[2, 1] * py + r[2, 2] * pz + translation[n, 2]
+            if abs(z) <= 1e-6:
+                z = 1e-6
+            fx_z, fy_z = fx / z, fy / z
+            n_u, n_v = normals[n, k, 0], normals[n, k, 1]
+            delta = (n_u * (x * fx_z + cx - centres[n, k, 0])
+                     + n_v * (y * fy_z + cy - centres[n, k, 1])) / scale
+            d_x, d_y = n_u * fx_z / scale, n_v * fy_z / scale
+            d_z = -(n_u * x * fx_z + n_v * y * fy_z) / z / scale
+            # The camera-frame derivative turned into the model frame: d @ R.
+            t_x = d_x * r[0, 0] + d_y * r[1, 0] + d_z * r[2, 0]
+            t_y = d_x * r[0, 1] + d_y * r[1, 1] + d_z * r[2, 1]
+            t_z = d_x * r[0, 2] + d_y * r[1, 2] + d_z * r[2, 2]
+            jacobian[0] = py * t_z - pz * t_y
+            jacobian[1] = pz * t_x - px * t_z
+            jacobian[2] = px * t_y - py * t_x
+            jacobian[3], jacobian[4], jacobian[5] = t_x, t_y, t_z
+            weight = weight_scale / variance[n, k]
+            residual = (mean[n, k] - delta) * weight
+            for a in range(6):
+                gradient[n, a] += residual * jacobian[a]
+                wa = weight * jacobian[a]
+                for b in range(a, 6):
+                    hessian[n, a, b] += wa * jacobian[b]
+        for a in range(6):
+            for b in range(a):
+                hessian[n, a, b] = hessian[n, b, a]
+    return gradient, hessian
