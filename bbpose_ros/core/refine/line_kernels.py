@@ -57,17 +57,23 @@ def project_contours(view_points, view_normals, view_runs_f, view_runs_b, views,
     Project the contour of one object's chosen views at its poses, into the outputs.
 
     Args:
-        view_points, view_normals: (V, P, 3) float32 the viewpoint model's contour points
-            and outward normals, model frame.
-        view_runs_f, view_runs_b: (V, P) float32 its run lengths inwards and outwards, metres.
+        view_points: (V, P, 3) float32 the viewpoint model's contour points, model frame.
+        view_normals: (V, P, 3) float32 their outward normals, model frame.
+        view_runs_f: (V, P) float32 how far the silhouette continues inwards, metres.
+        view_runs_b: (V, P) float32 how far the background continues outwards, metres.
         views: (M,) the view of each of the object's poses.
         poses: (M,) where those poses sit in the outputs.
-        rotation, translation: (N, 3, 3), (N, 3) all poses (metres).
-        fx, fy, cx, cy: camera intrinsics, pixels.
+        rotation: (N, 3, 3) model-to-camera rotations of all poses.
+        translation: (N, 3) their translations, metres.
+        fx: focal length in u, pixels.
+        fy: focal length in v, pixels.
+        cx: principal point u, pixels.
+        cy: principal point v, pixels.
         points: (N, P, 3) float32 out: the views' contour points, model frame.
         centres: (N, P, 2) float64 out: projected (u, v); in front or not.
         normals: (N, P, 2) float64 out: unit 2D normals (u, v).
-        runs_f, runs_b: (N, P) float64 out: run lengths in pixels at the point's depth.
+        runs_f: (N, P) float64 out: the inward run length in pixels at the point's depth.
+        runs_b: (N, P) float64 out: the outward one.
         in_front: (N, P) bool out: depth > 1e-6 m.
 
     """
@@ -119,14 +125,17 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
 
     Args:
         bins: (H * W,) uint16 colour bins of the image, row-major.
-        width, height: image size, pixels.
+        width: image width, pixels.
+        height: image height, pixels.
         centres: (N, P, 2) float64 projected contour points (u, v).
         normals: (N, P, 2) unit outward normals (u, v), taken in float32.
         valid: (N, P) bool lines to evaluate; the others get the uniform distribution.
-        hist_f, hist_b: (N, BINS) float64 colour histograms of each pose.
+        hist_f: (N, BINS) float64 foreground colour histogram of each pose.
+        hist_b: (N, BINS) float64 background colour histogram of each pose.
         scale: pixels per segment.
         segments: segments per line (the step function's length + D - 1).
-        h_b, h_diff: (F,) float32 the step function's background term and h_f - h_b.
+        h_b: (F,) float32 the step function's background term.
+        h_diff: (F,) float32 its foreground term minus the background one.
         positions: (D,) float64 contour positions, segments from the line's centre.
         min_variance: the variance's floor, segments squared.
         max_log_ratio: bound of a colour's foreground log-odds.
@@ -217,11 +226,12 @@ def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b,
 
     Args:
         bins: (H * W,) uint16 colour bins of the image, row-major.
-        width, height: image size, pixels.
+        width: image width, pixels.
+        height: image height, pixels.
         centres: (N, P, 2) float64 projected contour points.
         normals: (N, P, 2) unit outward normals, taken in float32.
-        runs_f, runs_b: (N, P) pixels the silhouette continues inwards and the background
-            outwards.
+        runs_f: (N, P) pixels the silhouette continues inwards.
+        runs_b: (N, P) pixels the background continues outwards.
         seen: (N, P) bool lines to count.
         offsets: (K,) float32 distances from the contour sampled, pixels.
         max_run: samples lie closer than min(run - 1, max_run) to the contour.
@@ -277,10 +287,14 @@ def gradient_hessian(rotation, translation, points_model, centres, normals, vali
         centres: (N, P, 2) projected contour points when the lines were made.
         normals: (N, P, 2) unit outward normals of the lines.
         valid: (N, P) bool lines that count.
-        mean, variance: (N, P) the contour distribution's, segments and segments squared.
+        mean: (N, P) the contour distributions' means, segments.
+        variance: (N, P) their variances, segments squared.
         scale: pixels per segment.
         weight_scale: a line's weight is weight_scale / variance.
-        fx, fy, cx, cy: camera intrinsics, pixels.
+        fx: focal length in u, pixels.
+        fy: focal length in v, pixels.
+        cx: principal point u, pixels.
+        cy: principal point v, pixels.
 
     Over the increment (rotation vector, translation, both in the model frame), each
     valid line's projected point moves along its normal by J . theta segments; its residual
