@@ -18,9 +18,9 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export BBPOSE_DATASET := $(DATASET)
 
-.PHONY: setup system-deps build-tools test demo lint clean photos weights
+.PHONY: setup system-deps build-tools kernels test demo lint clean photos weights
 
-setup: $(STAMP) $(INTERFACES_STAMP) system-deps
+setup: $(STAMP) $(INTERFACES_STAMP) system-deps kernels
 
 $(STAMP): requirements.txt setup.py package.xml
 	@echo "[setup] creating/updating $(VENV) with pinned dependencies (CPU torch)"
@@ -59,6 +59,12 @@ build-tools:
 		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends \
 			cmake g++ make python3-dev; \
 	fi
+
+# numba compiles the refiner's kernels into its cache once per source (tens of seconds);
+# doing it here keeps that out of the first node start and the first test that refines.
+kernels: $(STAMP)
+	@echo "[setup] the refiner's kernels (numba: compiled once, then loaded from its cache)"
+	@$(BIN)/python -c 'from bbpose_ros.core.refine.refiner import compile_kernels; compile_kernels()'
 
 # The synthetic-data renderer needs EGL and GL from Debian (Mesa llvmpipe, no GPU needed).
 system-deps:

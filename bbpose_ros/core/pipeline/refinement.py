@@ -36,7 +36,8 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
-from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
+from bbpose_ros.core.refine.refiner import (compile_kernels, refine_poses, Refinement,
+                                            RefinerConfig)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
@@ -157,22 +158,6 @@ class PoseRefiner:
                             masks=None if masks is None else masks.take([k for k, _ in jobs]),
                             prior_centres=centres)
 
-    def warm_up(self) -> None:
-        """
-        Compile the refinement's kernels now (``line_kernels``), not in the first frame.
-
-        numba compiles them once per machine and source (seconds) and loads them from its
-        cache after that; a small refinement of one object on a synthetic image does either.
-        """
-        if not self.viewpoint_models:
-            return
-        model = next(iter(self.viewpoint_models.values()))
-        camera = CameraIntrinsics(100.0, 100.0, 31.5, 31.5, 64, 64)
-        image = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
-        refine_poses(color_bins(image), camera, [model], [np.eye(3)],
-                     [[0.0, 0.0, 4.0 * model.diameter]],
-                     dataclasses.replace(self.config, iterations=1))
-
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],
                       translations: Sequence[np.ndarray],
@@ -198,9 +183,9 @@ def load_pose_refiner(models: Mapping[str, ObjectModel], config: RefinerConfig |
     """
     Build a PoseRefiner of the objects, viewpoint models from the cache (built if new).
 
-    Its kernels are compiled (or loaded from numba's cache) before it is returned.
+    The refinement's kernels are compiled (or loaded from numba's cache) first, so that the
+    first frame runs at speed.
     """
-    refiner = PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
-                          config, min_score)
-    refiner.warm_up()
-    return refiner
+    compile_kernels()
+    return PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
+                       config, min_score)

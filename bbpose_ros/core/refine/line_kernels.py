@@ -20,6 +20,7 @@ broadcasts that took many large temporary arrays a call, so these loops run comp
 (``numba.njit``, cached on disk after the first compilation) and touch each pixel once.
 ``region_modality`` owns the method; these kernels only evaluate it:
 
+* ``closest_views``: the stored view nearest to each pose's camera direction;
 * ``project_contours``: the contour points of each pose's closest view, projected;
 * ``contour_distributions``: along each line, the segments' foreground probabilities from
   the colour model (and a predicted mask), then the discrete distribution of where the
@@ -50,19 +51,57 @@ def use_threads(count: int) -> None:
 
 
 @numba.njit(**_NUMBA)
-def project_contours(view_points, view_normals, view_runs_f, view_runs_b, views, poses,
-                     rotation, translation, fx, fy, cx, cy, points, centres, normals, runs_f,
-                     runs_b, in_front):
+def _closest_view(view_directions, rotation, translation):
+    """Index of the view direction nearest to the camera's, -R^T t, seen from the model."""
+    dx = -(rotation[0, 0] * translation[0] + rotation[1, 0] * translation[1]
+           + rotation[2, 0] * translation[2])
+    dy = -(rotation[0, 1] * translation[0] + rotation[1, 1] * translation[1]
+           + rotation[2, 1] * translation[2])
+    dz = -(rotation[0, 2] * translation[0] + rotation[1, 2] * translation[1]
+           + rotation[2, 2] * translation[2])
+    best, best_dot = 0, -np.inf
+    for view in range(view_directions.shape[0]):
+        dot = (dx * view_directions[view, 0] + dy * view_directions[view, 1]
+               + dz * view_directions[view, 2])
+        if dot > best_dot:
+            best, best_dot = view, dot
+    return best
+
+
+@numba.njit(**_NUMBA)
+def closest_views(view_directions, rotations, translations):
     """
-    Project the contour of one object's chosen views at its poses, into the outputs.
+    Per pose, the index of the stored view nearest to the camera's direction.
 
     Args:
+        view_directions: (V, 3) unit vectors from the model origin towards the camera.
+        rotations: (N, 3, 3) model-to-camera rotations.
+        translations: (N, 3) translations (any unit).
+
+    Returns:
+        (N,) int64 view indices (the first of equally near ones).
+
+    """
+    views = np.empty(rotations.shape[0], dtype=np.int64)
+    for n in range(rotations.shape[0]):
+        views[n] = _closest_view(view_directions, rotations[n], translations[n])
+    return views
+
+
+@numba.njit(**_NUMBA)
+def project_contours(view_directions, view_points, view_normals, view_runs_f, view_runs_b,
+                     poses, rotation, translation, fx, fy, cx, cy, points, centres, normals,
+                     runs_f, runs_b, in_front):
+    """
+    Project the contour of one object's closest view at each of its poses, into the outputs.
+
+    Args:
+        view_directions: (V, 3) the viewpoint model's view directions.
         view_points: (V, P, 3) float32 the viewpoint model's contour points, model frame.
         view_normals: (V, P, 3) float32 their outward normals, model frame.
         view_runs_f: (V, P) float32 how far the silhouette continues inwards, metres.
         view_runs_b: (V, P) float32 how far the background continues outwards, metres.
-        views: (M,) the view of each of the object's poses.
-        poses: (M,) where those poses sit in the outputs.
+        poses: (M,) which of the N poses are the object's.
         rotation: (N, 3, 3) model-to-camera rotations of all poses.
         translation: (N, 3) their translations, metres.
         fx: focal length in u, pixels.
@@ -79,8 +118,9 @@ def project_contours(view_points, view_normals, view_runs_f, view_runs_b, views,
     """
     lines = view_points.shape[1]
     for m in range(poses.shape[0]):
-        n, view = poses[m], views[m]
+        n = poses[m]
         r, t = rotation[n], translation[n]
+        view = _closest_view(view_directions, r, t)
         for k in range(lines):
             point, normal = view_points[view, k], view_normals[view, k]
             px, py, pz = point[0], point[1], point[2]

@@ -277,3 +277,25 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                        float(scores[k]) if status[k] == 'ok' else 0.0, str(status[k]),
                        ColorHistograms(hist_f[k], hist_b[k]))
             for k in range(count)]
+
+
+def compile_kernels() -> None:
+    """
+    Compile the refinement's kernels (``line_kernels``) now, not in the first frame.
+
+    numba compiles them once per machine and source (tens of seconds) into its cache and
+    loads them from there after that (a fraction of a second); a refinement of a synthetic
+    square on a synthetic image does either, for the argument types a real one passes.
+    """
+    lines = 32
+    side = np.linspace(-0.05, 0.05, lines, dtype=np.float32)
+    points = np.stack([np.full(lines, 0.05, np.float32), side, np.zeros(lines, np.float32)], 1)
+    model = ViewpointModel(np.array([[0.0, 0.0, -1.0]]), points[None],
+                           np.tile(np.float32([1.0, 0.0, 0.0]), (1, lines, 1)),
+                           np.full((1, lines), 0.1, np.float32),
+                           np.full((1, lines), 0.1, np.float32), 0.15)
+    camera = CameraIntrinsics(500.0, 500.0, 63.5, 63.5, 128, 128)
+    bins = np.zeros((128, 128), np.uint16)
+    bins[:, 64:] = 1
+    refine_poses(bins, camera, [model], [np.eye(3)], [[-0.05, 0.0, 1.0]],
+                 RefinerConfig(iterations=1))

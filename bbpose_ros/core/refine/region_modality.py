@@ -137,10 +137,9 @@ class RegionModality:
         camera = self.camera
         for model, poses in self.groups:
             line_kernels.project_contours(
-                model.points, model.normals, model.foreground_m, model.background_m,
-                model.closest_views(rotation[poses], translation[poses]), poses, rotation,
-                translation, camera.fx, camera.fy, camera.cx, camera.cy, points, centres,
-                normals, runs_f, runs_b, in_front)
+                model.view_directions, model.points, model.normals, model.foreground_m,
+                model.background_m, poses, rotation, translation, camera.fx, camera.fy,
+                camera.cx, camera.cy, points, centres, normals, runs_f, runs_b, in_front)
         projected = points, centres, normals, runs_f, runs_b, in_front
         for array in projected:
             array.flags.writeable = False       # shared with the next caller at this pose

@@ -43,6 +43,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.refine import line_kernels
 
 # The template camera: at TEMPLATE_DISTANCE_M from the model origin, the diameter spans
 # TEMPLATE_DIAMETER_PX pixels (sub-pixel contours; cost grows with the square of it).
@@ -91,11 +92,10 @@ class ViewpointModel:
             (N,) int view indices.
 
         """
-        rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
-        translations = np.asarray(translations, dtype=float).reshape(-1, 3)
-        # The camera seen from the model origin, in the model frame: -R^T t.
-        directions = -(translations[:, None, :] @ rotations)[:, 0]
-        return np.argmax(directions @ self.view_directions.T, axis=1)
+        return line_kernels.closest_views(
+            np.ascontiguousarray(self.view_directions, dtype=float),
+            np.ascontiguousarray(rotations, dtype=float).reshape(-1, 3, 3),
+            np.ascontiguousarray(translations, dtype=float).reshape(-1, 3))
 
     def save(self, path: Path | str) -> None:
         """Write the model to ``path`` in .npz format, whatever its suffix."""
