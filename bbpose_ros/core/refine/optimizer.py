@@ -24,47 +24,86 @@ around it, so that directions the lines hardly constrain stay where they started
 drifting with the lines' noise over many steps.
 """
 
+import math
+
+import numba
 import numpy as np
 
-from bbpose_ros.core.geometry.rotations import exp_so3, log_so3
+from bbpose_ros.core.geometry.rotations import log_so3
 
 
-def newton_step(gradient: np.ndarray, hessian: np.ndarray, tikhonov_rotation: float,
-                tikhonov_translation: float) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True, nogil=True)
+def _newton_update(rotation, translation, gradient, hessian, damping, moving):
+    """Solve (H + diag(damping)) theta = g by Cholesky and move each ``moving`` pose."""
+    a = np.empty((6, 6))
+    for n in range(rotation.shape[0]):
+        if not moving[n]:
+            continue
+        for i in range(6):
+            for j in range(6):
+                a[i, j] = hessian[n, i, j]
+            a[i, i] += damping[i]
+        for j in range(6):          # A = L L^T, L in the lower triangle of a
+            for k in range(j):
+                a[j, j] -= a[j, k] * a[j, k]
+            a[j, j] = math.sqrt(a[j, j])
+            for i in range(j + 1, 6):
+                for k in range(j):
+                    a[i, j] -= a[i, k] * a[j, k]
+                a[i, j] /= a[j, j]
+        theta = gradient[n].copy()
+        for i in range(6):
+            for k in range(i):
+                theta[i] -= a[i, k] * theta[k]
+            theta[i] /= a[i, i]
+        for i in range(5, -1, -1):
+            for k in range(i + 1, 6):
+                theta[i] -= a[k, i] * theta[k]
+            theta[i] /= a[i, i]
+        # exp of the rotation vector (Rodrigues), then R' = R dR and t' = t + R dt.
+        wx, wy, wz = theta[0], theta[1], theta[2]
+        angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if angle > 1e-12:
+            s, c = math.sin(angle) / angle, (1.0 - math.cos(angle)) / (angle * angle)
+        else:
+            s, c = 1.0, 0.5
+        step = np.array([[1.0 - c * (wy * wy + wz * wz), c * wx * wy - s * wz,
+                          c * wx * wz + s * wy],
+                         [c * wx * wy + s * wz, 1.0 - c * (wx * wx + wz * wz),
+                          c * wy * wz - s * wx],
+                         [c * wx * wz - s * wy, c * wy * wz + s * wx,
+                          1.0 - c * (wx * wx + wy * wy)]])
+        before = rotation[n].copy()
+        for i in range(3):
+            translation[n, i] += (before[i, 0] * theta[3] + before[i, 1] * theta[4]
+                                  + before[i, 2] * theta[5])
+            for j in range(3):
+                rotation[n, i, j] = (before[i, 0] * step[0, j] + before[i, 1] * step[1, j]
+                                     + before[i, 2] * step[2, j])
+
+
+def newton_update(rotation: np.ndarray, translation: np.ndarray, gradient: np.ndarray,
+                  hessian: np.ndarray, tikhonov_rotation: float, tikhonov_translation: float,
+                  moving: np.ndarray) -> None:
     """
-    Solve the damped Newton step of N poses.
+    Take one damped Newton step for the ``moving`` poses, in place: R' = R dR, t' = t + R dt.
+
+    The step theta = (H + damping)^-1 g is a rotation vector dr (dR = exp(dr)) and a
+    model-frame shift dt; compiled (numba), as it runs twice a correspondence iteration.
 
     Args:
+        rotation: (N, 3, 3) model-to-camera rotations (float64, C order), updated.
+        translation: (N, 3) translations, metres, updated.
         gradient: (N, 6) gradients, rotation first.
-        hessian: (N, 6, 6) Hessians (not modified).
+        hessian: (N, 6, 6) Hessians (positive semi-definite; not modified).
         tikhonov_rotation: damping of the rotation, per radian squared, > 0.
         tikhonov_translation: damping of the translation, per metre squared, > 0.
-
-    Returns:
-        ((N, 3, 3) rotation increments exp(theta_r), (N, 3) model-frame shifts theta_t).
+        moving: (N,) bool which poses move.
 
     """
-    damped = hessian + np.diag([tikhonov_rotation] * 3 + [tikhonov_translation] * 3)
-    theta = np.linalg.solve(damped, gradient[..., None])[..., 0]
-    return exp_so3(theta[:, :3]), theta[:, 3:]
-
-
-def apply_step(rotation: np.ndarray, translation: np.ndarray, step_rotation: np.ndarray,
-               step_translation: np.ndarray, moving: np.ndarray) -> None:
-    """
-    Move the ``moving`` (N,) bool poses by their steps, in place: R' = R dR, t' = t + R dt.
-
-    Args:
-        rotation: (N, 3, 3) model-to-camera rotations.
-        translation: (N, 3) translations, metres.
-        step_rotation: (N, 3, 3) rotation increments, from ``newton_step``.
-        step_translation: (N, 3) model-frame shifts, from ``newton_step``.
-        moving: (N,) which poses move.
-
-    """
-    before = rotation[moving]
-    rotation[moving] = before @ step_rotation[moving]
-    translation[moving] += (before @ step_translation[moving][..., None])[..., 0]
+    damping = np.array([tikhonov_rotation] * 3 + [tikhonov_translation] * 3)
+    _newton_update(rotation, translation, np.ascontiguousarray(gradient, dtype=float),
+                   np.ascontiguousarray(hessian, dtype=float), damping, moving)
 
 
 def start_prior(gradient: np.ndarray, hessian: np.ndarray, rotation: np.ndarray,

@@ -44,7 +44,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine import line_kernels
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
-from bbpose_ros.core.refine.optimizer import apply_step, newton_step, start_prior
+from bbpose_ros.core.refine.optimizer import newton_update, start_prior
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
@@ -249,9 +249,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             if any(prior):
                 gradient, hessian = start_prior(gradient, hessian, rotation, translation,
                                                 anchor_rotation, anchor_translation, *prior)
-            apply_step(rotation, translation,
-                       *newton_step(gradient, hessian, config.tikhonov_rotation,
-                                    config.tikhonov_translation), active)
+            newton_update(rotation, translation, gradient, hessian, config.tikhonov_rotation,
+                          config.tikhonov_translation, active)
             behind = active & (translation[:, 2] <= 0.5 * modality.diameters)
             status[behind] = 'behind_camera'
             active &= ~behind

@@ -23,7 +23,7 @@ The region modality (SRT3D): correspondence lines across the projected contour.
   a discrete distribution of where the contour is on that line: its mean and variance; a
   predicted silhouette mask (``foreground_masks``) may stand in for or mix with the colours;
 * ``RegionModality.gradient_hessian`` turns them into the pull on the 6-DoF pose that
-  ``optimizer.newton_step`` solves for.
+  ``optimizer.newton_update`` solves for.
 
 Poses are model-to-camera (egocentric): x_cam = rotation @ x_model + translation, metres.
 Pixel coordinates are continuous with pixel centres at integers (``CameraIntrinsics``).
@@ -209,7 +209,7 @@ class RegionModality:
         Over the pose increment (a rotation vector, then a translation, both in the model
         frame: x' = exp(theta_r) x + theta_t), each line's projected contour point is pulled
         towards its line's mean, weighted by the inverse variance (scaled by ``sigma``, the
-        expected contour error in pixels). ``optimizer.newton_step`` adds the damping.
+        expected contour error in pixels). ``optimizer.newton_update`` adds the damping.
         """
         camera = self.camera
         return line_kernels.gradient_hessian(
