@@ -32,12 +32,20 @@ Conventions are the modality's: pixel coordinates continuous with pixel centres 
 integers, a sample at (u, v) reads pixel (floor(u + 0.5), floor(v + 0.5)); the image is the
 flat (H * W,) array of its colour bins, row-major. The per-pose loops run in parallel over
 the poses (``use_threads``).
+
+Threads wait for work asleep, not spinning (``OMP_WAIT_POLICY=PASSIVE`` unless the
+environment sets it, before numba starts its OpenMP threads): on a robot's two cores the
+other processes (DDS, the camera driver) then keep their core, and a spinning worker does not
+slow the refinement down when that core is busy.
 """
 
 import math
+import os
 
 import numba
 import numpy as np
+
+os.environ.setdefault('OMP_WAIT_POLICY', 'PASSIVE')
 
 # Fast-math without 'nnan' / 'ninf': the colour loops test for NaN coordinates.
 _NUMBA = {'cache': True, 'nogil': True, 'error_model': 'numpy',
@@ -314,7 +322,7 @@ def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b,
     return hist_f, hist_b, totals
 
 
-@numba.njit(parallel=True, **_NUMBA)
+@numba.njit(**_NUMBA)
 def gradient_hessian(rotation, translation, points_model, centres, normals, valid, mean,
                      variance, scale, weight_scale, fx, fy, cx, cy):
     """
@@ -344,8 +352,8 @@ def gradient_hessian(rotation, translation, points_model, centres, normals, vali
     count, lines = points_model.shape[0], points_model.shape[1]
     gradient = np.zeros((count, 6))
     hessian = np.zeros((count, 6, 6))
-    for n in numba.prange(count):
-        jacobian = np.empty(6)
+    jacobian = np.empty(6)
+    for n in range(count):
         r = rotation[n]
         for k in range(lines):
             if not valid[n, k]:
