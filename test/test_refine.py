@@ -16,6 +16,7 @@
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 
@@ -548,3 +549,49 @@ def test_threads_split_the_poses_without_changing_them(viewpoint_models, lmo_fra
         assert one.status == two.status == 'ok'
         np.testing.assert_array_equal(one.rotation, two.rotation)
         np.testing.assert_array_equal(one.translation, two.translation)
+
+
+def test_nearer_instances_hide_the_contour_they_cover(viewpoint_models, lmo_models,
+                                                      lmo_frames):
+    models, _ = viewpoint_models
+    hidden_any = False
+    for frame in lmo_frames[:10]:
+        instances = [i for i in frame.instances if i.object_name in models]
+        if len(instances) < 2:
+            continue
+        rotation = np.stack([i.rotation for i in instances])
+        translation = np.stack([i.translation for i in instances])
+        bins = color_bins(frame.load_image())
+        view = [models[i.object_name] for i in instances]
+        free = RegionModality(view, bins, frame.camera, 3.0).project(rotation, translation)
+        count = len(instances)
+        hiding = RegionModality(view, bins, frame.camera, 3.0, occlusions=(
+            np.arange(count), np.ones(count, bool))).project(rotation, translation)
+        centres, seen, seen_free = free[1], hiding[5], free[5]
+        hidden = seen_free & ~seen
+        silhouettes = [cv2.dilate(render_silhouette(frame.camera, lmo_models[i.object_name]
+                                                    .vertices, lmo_models[i.object_name].faces,
+                                                    i.rotation, i.translation)
+                                  .astype(np.uint8), np.ones((5, 5), np.uint8))
+                       for i in instances]
+        for n in range(count):
+            nearer = [m for m in range(count) if translation[m, 2] < translation[n, 2]]
+            pixels = np.round(centres[n]).astype(int)
+            u = np.clip(pixels[:, 0], 0, frame.camera.width - 1)
+            v = np.clip(pixels[:, 1], 0, frame.camera.height - 1)
+            covered = np.zeros(len(u), bool)
+            for m in nearer:
+                covered |= silhouettes[m][v, u] > 0
+            # Hidden points lie on a nearer instance's silhouette (within 2 px: the lines
+            # come from the closest stored view); the farthest is never hidden.
+            assert np.all(covered[hidden[n]]), (frame.image_id, n)
+            hidden_any |= hidden[n].any()
+        assert not hidden[np.argmin(translation[:, 2])].any()
+        # Candidates of one instance never hide each other.
+        twice = RegionModality(view + view, bins, frame.camera, 3.0, occlusions=(
+            np.tile(np.arange(count), 2), np.ones(2 * count, bool)))
+        both = twice.project(np.concatenate([rotation, rotation]),
+                             np.concatenate([translation, translation]))[5]
+        np.testing.assert_array_equal(both[:count], seen)
+        np.testing.assert_array_equal(both[count:], seen)
+    assert hidden_any

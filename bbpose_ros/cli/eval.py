@@ -94,6 +94,10 @@ def add_pipeline_arguments(parser):
     parser.add_argument('--refine-prior-mm', type=float, default=defaults.refine_prior_mm,
                         help="the same for the start's translation, millimetres "
                              '(default %(default)s)')
+    parser.add_argument('--refine-occlusions', action=argparse.BooleanOptionalAction,
+                        default=defaults.refine_occlusions,
+                        help="let the poses of a frame hide each other's contour where one "
+                             'is nearer the camera (default: %(default)s)')
     parser.add_argument('--pose-source', choices=POSE_SOURCES, default=defaults.pose_source,
                         help='candidate poses from Q-Net + the Bounding Box Equation (qnet, '
                              'the paper), PnP over the dense correspondences (dense), or both '
@@ -117,6 +121,7 @@ def pipeline_options(args):
                                refine_hypotheses=args.refine_hypotheses,
                                refine_prior_deg=args.refine_prior_deg,
                                refine_prior_mm=args.refine_prior_mm,
+                               refine_occlusions=args.refine_occlusions,
                                pose_source=args.pose_source,
                                dense_translation=args.dense_translation,
                                dense_mask=args.dense_mask)
@@ -208,6 +213,7 @@ def run(args):
                         'refine_hypotheses': args.refine_hypotheses,
                         'refine_prior_deg': args.refine_prior_deg,
                         'refine_prior_mm': args.refine_prior_mm,
+                        'refine_occlusions': args.refine_occlusions,
                         'pose_source': args.pose_source,
                         'dense_translation': args.dense_translation,
                         'dense_mask': args.dense_mask,

@@ -191,6 +191,9 @@ PARAMETERS = {
     'refine_threads': option_spec(
         'refine_threads', "Threads the refinement's per-line loops run on, split by pose; 0: "
         'one per core.'),
+    'refine_occlusions': option_spec(
+        'refine_occlusions', "The poses of a frame hide each other's contour lines where one "
+        'is nearer the camera (the image shows the occluder there).'),
     'pose_source': option_spec(
         'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
         'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '

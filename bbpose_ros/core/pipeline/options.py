@@ -65,6 +65,8 @@ class PipelineOptions:
             start's rotation, degrees; 0: none (``RefinerConfig.prior_rotation_deg``).
         refine_prior_mm: the same for the start's translation, millimetres; 0: none.
         refine_threads: threads the refinement's per-line loops run on; 0: one per core.
+        refine_occlusions: the poses refined together hide each other's contour where one
+            is nearer the camera (``RefinerConfig.model_occlusions``).
         pose_source: where each detection's candidate poses come from: 'qnet' (Q-Net's
             hypotheses + the Bounding Box Equation, the paper's path), 'dense' (PnP over
             the dense net's correspondences, with PnP's or the equation's translation per
@@ -94,6 +96,7 @@ class PipelineOptions:
     refine_prior_deg: float = _option(0.0, 0.0, 180.0)
     refine_prior_mm: float = _option(0.0, 0.0, 1000.0)
     refine_threads: int = _option(0, 0, 256)
+    refine_occlusions: bool = _option(True)
     pose_source: str = _option('qnet', choices=POSE_SOURCES)
     dense_translation: str = _option('pnp', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)
@@ -125,10 +128,11 @@ class PipelineOptions:
 
     @property
     def refiner_config(self) -> RefinerConfig:
-        """Return the shipped RefinerConfig with these options' prior and threads."""
+        """Return the shipped RefinerConfig with these options' prior, threads, occlusions."""
         return RefinerConfig(prior_rotation_deg=self.refine_prior_deg,
                              prior_translation_m=self.refine_prior_mm / 1000.0,
-                             threads=self.refine_threads)
+                             threads=self.refine_threads,
+                             model_occlusions=self.refine_occlusions)
 
     @property
     def candidates_per_detection(self) -> int:

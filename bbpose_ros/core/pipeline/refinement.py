@@ -152,22 +152,26 @@ class PoseRefiner:
                 prior_centres=None):
         centres = None if prior_centres is None else ([r for r, _ in prior_centres],
                                                       [t for _, t in prior_centres])
+        detections = [k for k, _ in jobs]
+        # Of a detection's candidates the first (best-ranked) hides the other detections.
+        first = [n == 0 or detections[n - 1] != k for n, k in enumerate(detections)]
         return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
                             [r for r, _ in starts], [t for _, t in starts], self.config,
                             iterations=iterations, first_iteration=first_iteration,
-                            masks=None if masks is None else masks.take([k for k, _ in jobs]),
-                            prior_centres=centres)
+                            masks=None if masks is None else masks.take(detections),
+                            prior_centres=centres, instances=detections, occluders=first)
 
     def refine_tracks(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                       names: Sequence[str], rotations: Sequence[np.ndarray],
                       translations: Sequence[np.ndarray],
                       histograms: Sequence[ColorHistograms | None],
                       iterations: int) -> list[Refinement]:
-        """Refine tracked poses in one batch, from the fine end of the scale schedule."""
+        """Refine tracked poses in one batch (each its own instance), from the fine end."""
         return refine_poses(color_bins(image_rgb), camera,
                             [self.viewpoint_models[name] for name in names], rotations,
                             translations, self.config, histograms, iterations,
-                            max(len(self.config.scales) - iterations, 0))
+                            max(len(self.config.scales) - iterations, 0),
+                            instances=range(len(names)))
 
 
 def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:

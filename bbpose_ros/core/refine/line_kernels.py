@@ -22,6 +22,8 @@ broadcasts that took many large temporary arrays a call, so these loops run comp
 
 * ``closest_views``: the stored view nearest to each pose's camera direction;
 * ``project_contours``: the contour points of each pose's closest view, projected;
+* ``hide_occluded``: contour points that another instance's silhouette, nearer the
+  camera, covers;
 * ``contour_distributions``: along each line, the segments' foreground probabilities from
   the colour model (and a predicted mask), then the discrete distribution of where the
   contour lies on the line, its mean and variance;
@@ -149,6 +151,54 @@ def project_contours(view_directions, view_points, view_normals, view_runs_f, vi
             px_per_m = fx / z
             runs_f[n, k] = view_runs_f[view, k] * px_per_m
             runs_b[n, k] = view_runs_b[view, k] * px_per_m
+
+
+@numba.njit(**_NUMBA)
+def _inside_polygon(u, v, polygon):
+    """Tell whether (u, v) lies inside the closed (P, 2) polygon (even-odd rule)."""
+    inside = False
+    last = polygon.shape[0] - 1
+    for i in range(polygon.shape[0]):
+        u_i, v_i, u_j, v_j = polygon[i, 0], polygon[i, 1], polygon[last, 0], polygon[last, 1]
+        if (v_i > v) != (v_j > v) and u < (u_j - u_i) * (v - v_i) / (v_j - v_i) + u_i:
+            inside = not inside
+        last = i
+    return inside
+
+
+@numba.njit(**_NUMBA)
+def hide_occluded(centres, depths, instances, casts, in_front):
+    """
+    Mark the contour points that a nearer instance's silhouette covers as not seen.
+
+    A pose's projected contour, in the order it was traced, is its silhouette's outline;
+    where a pose of another instance, nearer the camera by its origin's depth, covers a
+    contour point of this one, the image shows the occluder there, not this contour.
+
+    Args:
+        centres: (N, P, 2) projected contour points, pixels, in outline order.
+        depths: (N,) depth of each pose's model origin, metres.
+        instances: (N,) int the instance each pose is a candidate for: poses of the same
+            instance are alternatives and never hide each other.
+        casts: (N,) bool which poses hide others (e.g. one candidate per instance).
+        in_front: (N, P) bool contour points seen, updated in place.
+
+    """
+    count, points = in_front.shape
+    low, high = np.empty((count, 2)), np.empty((count, 2))
+    for m in range(count):
+        for a in range(2):
+            low[m, a], high[m, a] = centres[m, :, a].min(), centres[m, :, a].max()
+    for n in range(count):
+        for m in range(count):
+            if instances[m] == instances[n] or not casts[m] or depths[m] >= depths[n]:
+                continue
+            for k in range(points):
+                u, v = centres[n, k, 0], centres[n, k, 1]
+                if (in_front[n, k] and low[m, 0] <= u <= high[m, 0]
+                        and low[m, 1] <= v <= high[m, 1]
+                        and _inside_polygon(u, v, centres[m])):
+                    in_front[n, k] = False
 
 
 @numba.njit(**_NUMBA)

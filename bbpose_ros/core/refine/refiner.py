@@ -82,6 +82,8 @@ class RefinerConfig:
         prior_translation_m: the same for the translation, metres (depth, mostly).
         threads: threads the per-line loops run on, split by pose (``line_kernels``);
             0: one per core.
+        model_occlusions: the poses refined together hide each other's contour where one
+            is nearer the camera (the lines there see the occluder, not the object).
 
     """
 
@@ -98,6 +100,7 @@ class RefinerConfig:
     prior_rotation_deg: float = 0.0
     prior_translation_m: float = 0.0
     threads: int = 0
+    model_occlusions: bool = True
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -166,7 +169,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                  iterations: int | None = None, first_iteration: int = 0,
                  masks: ForegroundMasks | None = None,
                  prior_centres: tuple[Sequence[npt.ArrayLike], Sequence[npt.ArrayLike]]
-                 | None = None) -> list[Refinement]:
+                 | None = None, instances: Sequence[int] | None = None,
+                 occluders: Sequence[bool] | None = None) -> list[Refinement]:
     """
     Refine N poses in one image at once (all arrays carry the pose as first axis).
 
@@ -191,6 +195,13 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             (``RefinerConfig.prior_rotation_deg``, ``prior_translation_m``) lies, per pose
             (default: the starts); a refinement continued at ``first_iteration`` passes the
             first run's starts, so that it ends where one run would.
+        instances: per pose, the object instance (e.g. the detection) it is a candidate
+            for. With ``RefinerConfig.model_occlusions``, a pose's silhouette hides the
+            contour points of other instances' poses farther from the camera; candidates of
+            one instance never hide each other. None: no pose hides another (e.g. several
+            starts of one object).
+        occluders: with ``instances``, per pose, whether its silhouette hides others
+            (default: all), e.g. the first candidate of each instance only.
 
     Returns:
         Per pose, a Refinement; a start behind the camera or with too few contour lines
@@ -209,8 +220,13 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
     start_translation = np.array(translations, dtype=float).reshape(count, 3)
     rotation, translation = start_rotation.copy(), start_translation.copy()
+    occlusions = None
+    if config.model_occlusions and instances is not None:
+        occlusions = (np.asarray(instances, dtype=np.int64).reshape(count),
+                      np.ones(count, bool) if occluders is None
+                      else np.asarray(occluders, dtype=bool).reshape(count))
     modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
-                              config.mask_weight)
+                              config.mask_weight, occlusions)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
@@ -296,5 +312,7 @@ def compile_kernels() -> None:
     camera = CameraIntrinsics(500.0, 500.0, 63.5, 63.5, 128, 128)
     bins = np.zeros((128, 128), np.uint16)
     bins[:, 64:] = 1
-    refine_poses(bins, camera, [model], [np.eye(3)], [[-0.05, 0.0, 1.0]],
-                 RefinerConfig(iterations=1))
+    # Two poses, the nearer one hiding part of the other: the occlusion kernel compiles too.
+    refine_poses(bins, camera, [model, model], [np.eye(3), np.eye(3)],
+                 [[-0.05, 0.0, 1.0], [-0.03, 0.0, 1.2]], RefinerConfig(iterations=1),
+                 instances=[0, 1])

@@ -99,12 +99,19 @@ class RegionModality:
         masks: per pose, a predicted foreground mask (``foreground_masks``), or None.
         mask_weight: where a pose has a mask, a pixel's foreground log-odds are
             (1 - w) * the colours' + w * the mask's (1: the mask alone).
+        occlusions: (instances, casts): per pose, the (N,) int instance it is a candidate
+            for and the (N,) bool whether its silhouette hides the contours of other
+            instances' poses behind it (``line_kernels.hide_occluded``; ICG's model
+            occlusions, with the silhouettes of the poses themselves); None: no pose hides
+            another.
 
     """
 
     def __init__(self, models: Sequence[ViewpointModel], bins: np.ndarray,
                  camera: CameraIntrinsics, min_continuous_px: float,
-                 masks: ForegroundMasks | None = None, mask_weight: float = 1.0) -> None:
+                 masks: ForegroundMasks | None = None, mask_weight: float = 1.0,
+                 occlusions: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        self.occlusions = occlusions
         self.min_continuous_px = min_continuous_px
         self.masks = masks
         self.mask_weight = float(mask_weight)
@@ -140,6 +147,9 @@ class RegionModality:
                 model.view_directions, model.points, model.normals, model.foreground_m,
                 model.background_m, poses, rotation, translation, camera.fx, camera.fy,
                 camera.cx, camera.cy, points, centres, normals, runs_f, runs_b, in_front)
+        if self.occlusions is not None and count > 1:
+            line_kernels.hide_occluded(centres, translation[:, 2].astype(float),
+                                       *self.occlusions, in_front)
         projected = points, centres, normals, runs_f, runs_b, in_front
         for array in projected:
             array.flags.writeable = False       # shared with the next caller at this pose
