@@ -109,6 +109,7 @@ def bench_frames(frames, values, warmup):
         warmup=warmup)
     options = config.options
     report.update(inference_backend=options.backend,
+                  detector_network=pipeline.detector.precision,
                   inference_threads=options.threads or os.cpu_count(),
                   refine_hypotheses=options.refine_hypotheses if options.refine else 0)
     return report
@@ -147,7 +148,8 @@ def format_frames(report):
                  f'objects per frame {report["objects_per_frame"]:.2f} (all objects '
                  f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '
                  f'{report["peak_rss_mb"]:.0f} MB; {report["inference_backend"]} with '
-                 f'{report["inference_threads"]} threads')
+                 f'{report["inference_threads"]} threads, detector '
+                 f'{report["detector_network"]}')
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 

@@ -24,7 +24,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.pipeline.options import (DENSE_MASKS, DENSE_TRANSLATIONS, PipelineOptions,
+from bbpose_ros.core.pipeline.options import (DENSE_MASKS, DENSE_TRANSLATIONS,
+                                              DETECTOR_PRECISIONS, PipelineOptions,
                                               POSE_SOURCES)
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
@@ -111,6 +112,10 @@ def add_pipeline_arguments(parser):
                              'visible mask, or none (colours) (default %(default)s)')
     parser.add_argument('--dense-weights', type=Path, default=None,
                         help='dense net weight file (default: the shipped one)')
+    parser.add_argument('--detector-precision', choices=DETECTOR_PRECISIONS,
+                        default=defaults.detector_precision,
+                        help="the detector's network: fp32, its int8 graph, or auto (int8 on "
+                             'a CPU with int8 dot products) (default %(default)s)')
 
 
 def pipeline_options(args):
@@ -124,7 +129,8 @@ def pipeline_options(args):
                                refine_occlusions=args.refine_occlusions,
                                pose_source=args.pose_source,
                                dense_translation=args.dense_translation,
-                               dense_mask=args.dense_mask)
+                               dense_mask=args.dense_mask,
+                               detector_precision=args.detector_precision)
     except InputError as err:
         option, _, reason = str(err).partition(': ')
         raise InputError(f'--{option.replace("_", "-")}: {reason}') from err
@@ -218,6 +224,8 @@ def run(args):
                         'dense_translation': args.dense_translation,
                         'dense_mask': args.dense_mask,
                         'dense_weights': _weights_name(args.dense_weights),
+                        'detector_precision': args.detector_precision,
+                        'detector_network': getattr(pipeline.detector, 'precision', None),
                         'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
     for level in report.get('sweep', []):

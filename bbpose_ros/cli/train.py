@@ -30,6 +30,8 @@
   crop cell) on a crop cache rendered with ``--dense-size``.
 * ``bbpose train verifier``: the detector's second stage, on the candidates a trained
   detector (``--detector-weights``) finds in a scene cache; writes both stages in one file.
+* ``bbpose train quantize``: the detector's int8 graph (``<weights stem>_int8.onnx``),
+  calibrated on a scene cache's renders; ``detector_precision`` chooses it at run time.
 * ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
   initialisation and samples, losses in one plot.
 """
@@ -130,6 +132,22 @@ def add_parser(subparsers):
     _budget(verifier, steps=8000)
     _verifier_options(verifier)
     verifier.set_defaults(func=run_verifier)
+    quantize = sub.add_parser(
+        'quantize', help="quantise the detector's network to int8",
+        description='Write the int8 graph of a detector weight file (ONNX Runtime static '
+                    'quantisation), its activation ranges measured on renders of a scene '
+                    'cache; the node runs it with detector_precision int8 (or auto).')
+    quantize.add_argument('--weights', type=Path, default=None,
+                          help='float detector file (default: the shipped detector.pt)')
+    quantize.add_argument('--cache', type=Path, required=True,
+                          help='scene cache whose first renders calibrate (never real '
+                               'evaluation frames)')
+    quantize.add_argument('--images', type=int, default=32,
+                          help='calibration images (default %(default)s)')
+    quantize.add_argument('--out', type=Path, default=None,
+                          help='the .onnx to write (default: <weights stem>_int8.onnx beside '
+                               'the weights)')
+    quantize.set_defaults(func=run_quantize)
     fig3 = sub.add_parser('fig3', help="the paper's Fig. 3: with vs without q-normalization")
     _common(fig3)
     _budget(fig3, steps=3000)
@@ -567,6 +585,28 @@ def run_dense(args):
     train_dense(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
                 args.seed, args.threads, args.export, args.every, real_crops=real,
                 device=device)
+    return 0
+
+
+def run_quantize(args):
+    """Write the detector's int8 graph, calibrated on a scene cache."""
+    import shlex
+    import sys
+
+    from bbpose_ros.core.pipeline.int8_detector import int8_graph_path
+    from bbpose_ros.core.pipeline.weights import DEFAULT_DETECTOR_WEIGHTS, load_network
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.quantization import calibration_images, quantize_detector
+    if args.images < 1:
+        raise InputError(f'--images must be at least 1, got {args.images}')
+    weights = args.weights or DEFAULT_DETECTOR_WEIGHTS
+    input_size = load_network(weights, 'detector').config.input_size
+    cache = TrainingCache(args.cache, max_shards=1)
+    images = calibration_images(cache.images, input_size, args.images)
+    out = quantize_detector(weights, images, args.out or int8_graph_path(weights),
+                            command=shlex.join(['bbpose', *sys.argv[1:]]))
+    print(f'int8 detector graph written to {out} ({out.stat().st_size / 1e6:.2f} MB, '
+          f'{len(images)} calibration images of {args.cache})')
     return 0
 
 

@@ -52,8 +52,9 @@ def build_node_pipeline(config: NodeConfig,
     """
     Build the NodePipeline of a NodeConfig: meshes, the learned stages, refinement, tracking.
 
-    ``log`` gets a line for each viewpoint model the refiner builds (once per mesh, then
-    cached). With ``tracking`` the pipeline is a PoseTracker around the PosePipeline.
+    ``log`` gets a line naming the detector's network (fp32 or int8) and one for each
+    viewpoint model the refiner builds (once per mesh, then cached). With ``tracking`` the
+    pipeline is a PoseTracker around the PosePipeline.
 
     Raises InputError naming the parameters behind a failure (unknown objects, a weight
     file that does not fit).
@@ -70,6 +71,9 @@ def build_node_pipeline(config: NodeConfig,
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights / dense_weights (empty: '
                          f'the shipped files): {err}') from err
+    if log is not None:
+        log(f'detector network: {pipeline.detector.precision} (detector_precision '
+            f'{config.options.detector_precision})')
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)

@@ -74,47 +74,75 @@ class TorchRunner:
             return self.network(*[torch.from_numpy(x).to(self.device) for x in inputs])
 
 
-class OnnxRuntimeRunner:
+def export_onnx(network: nn.Module, example_inputs: Sequence[np.ndarray],
+                input_names: Sequence[str], output_names: Sequence[str],
+                dynamic_batch: bool = False) -> bytes:
     """
-    ONNX Runtime on the CPU: ``runner(images, *rest)`` returns the network's outputs.
+    Export ``ImageInput(inference_network(network))`` to ONNX, in memory.
 
     Args:
         network: an eval-mode network whose forward has no data-dependent control flow (it
             is traced once with ``example_inputs``).
         example_inputs: tuple of numpy arrays: (N, H, W, 3) uint8 images, then the forward's
             other inputs.
+        input_names, output_names: the graph's names, in the forward's order.
         dynamic_batch: whether the first axis of every input and output may vary.
+
+    Returns:
+        The serialised ONNX model.
+
+    """
+    prepared = ImageInput(inference_network(network))
+    example = tuple(torch.from_numpy(x) for x in example_inputs)
+    names = list(input_names) + list(output_names)
+    batch_axes = {name: {0: 'batch'} for name in names} if dynamic_batch else None
+    model = io.BytesIO()
+    with warnings.catch_warnings():
+        # The TorchScript-based exporter (dynamo=False): the newer torch.export one is far
+        # slower to export, too slow for a node's start.
+        warnings.simplefilter('ignore')
+        torch.onnx.export(prepared, example, model, input_names=list(input_names),
+                          output_names=list(output_names), dynamic_axes=batch_axes,
+                          dynamo=False)
+    return model.getvalue()
+
+
+class OnnxRuntimeRunner:
+    """
+    ONNX Runtime on the CPU: ``runner(images, *rest)`` returns the network's outputs.
+
+    Args:
+        model: a serialised ONNX model (``export_onnx``, or an int8 graph), its inputs in
+            the order the runner is called with.
         threads: ONNX Runtime intra-op threads (None: one per physical core).
 
     """
 
-    def __init__(self, network: nn.Module, example_inputs: Sequence[np.ndarray],
-                 dynamic_batch: bool = False, threads: int | None = None) -> None:
+    def __init__(self, model: bytes, threads: int | None = None) -> None:
         import onnxruntime
 
-        inputs = [f'input{k}' for k in range(len(example_inputs))]
-        prepared = ImageInput(inference_network(network))
-        example_inputs = tuple(torch.from_numpy(x) for x in example_inputs)
-        with torch.inference_mode():
-            outputs = prepared(*example_inputs)
-        self._single = isinstance(outputs, torch.Tensor)
-        names = [f'output{k}' for k in range(1 if self._single else len(outputs))]
-        batch_axes = {name: {0: 'batch'} for name in inputs + names} if dynamic_batch else None
-        model = io.BytesIO()
-        with warnings.catch_warnings():
-            # The TorchScript-based exporter (dynamo=False): the newer torch.export one is
-            # far slower to export, too slow for a node's start.
-            warnings.simplefilter('ignore')
-            torch.onnx.export(prepared, example_inputs, model, input_names=inputs,
-                              output_names=names, dynamic_axes=batch_axes, dynamo=False)
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads or 0
         options.inter_op_num_threads = 1
         # Idle threads sleep instead of spinning: the node waits for frames most of the time.
         options.add_session_config_entry('session.intra_op.allow_spinning', '0')
         self._session = onnxruntime.InferenceSession(
-            model.getvalue(), options, providers=['CPUExecutionProvider'])
-        self._inputs = inputs
+            model, options, providers=['CPUExecutionProvider'])
+        self._inputs = [node.name for node in self._session.get_inputs()]
+        self._single = len(self._session.get_outputs()) == 1
+
+    @classmethod
+    def from_network(cls, network: nn.Module, example_inputs: Sequence[np.ndarray],
+                     dynamic_batch: bool = False,
+                     threads: int | None = None) -> 'OnnxRuntimeRunner':
+        """Export ``network`` (``export_onnx``, traced with ``example_inputs``) and run it."""
+        with torch.inference_mode():
+            outputs = ImageInput(network.eval())(*map(torch.from_numpy, example_inputs))
+        count = 1 if isinstance(outputs, torch.Tensor) else len(outputs)
+        model = export_onnx(network, example_inputs,
+                            [f'input{k}' for k in range(len(example_inputs))],
+                            [f'output{k}' for k in range(count)], dynamic_batch)
+        return cls(model, threads)
 
     def __call__(self, *inputs: np.ndarray) -> torch.Tensor | tuple[torch.Tensor, ...]:
         """Run the network on numpy inputs (uint8 images first); outputs are torch tensors."""
@@ -151,4 +179,4 @@ def make_runner(network: nn.Module, example_inputs: Sequence[np.ndarray],
     if device != 'cpu':
         raise InputError(f'inference backend onnxruntime runs on the CPU only, not on device '
                          f'"{device}"; choose the torch backend for it')
-    return OnnxRuntimeRunner(network, example_inputs, dynamic_batch, threads)
+    return OnnxRuntimeRunner.from_network(network, example_inputs, dynamic_batch, threads)

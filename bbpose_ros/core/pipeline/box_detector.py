@@ -29,7 +29,8 @@ import torch
 
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, peak_boxes, PeakOutputs
-from bbpose_ros.core.pipeline.backends import make_runner
+from bbpose_ros.core.pipeline.backends import make_runner, OnnxRuntimeRunner
+from bbpose_ros.core.pipeline.int8_detector import with_peak_search
 from bbpose_ros.core.pipeline.poses import Detection
 
 
@@ -47,13 +48,19 @@ class BoxDetector:
         score_threshold: lowest detection score reported.
         max_instances: most detections per object name.
         backend, device, threads: see ``backends.make_runner``.
+        int8_graph: the network's int8 graph (``int8_detector.read_int8_graph``, checked
+            against the network's weight file by the caller), run by ONNX Runtime in place of
+            the float network; None: the float network. The second stage stays float.
+
+    Attributes:
+        precision: 'int8' or 'fp32', what runs the heatmap network.
 
     """
 
     def __init__(self, network: CenterBoxNet, names: Collection[str],
                  score_threshold: float = 0.3, max_instances: int = 1,
                  backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, int8_graph=None) -> None:
         self.config = network.config
         in_w, in_h = self.config.input_size
         self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
@@ -65,8 +72,13 @@ class BoxDetector:
         count = self.config.candidates if network.verifier is not None else max_instances
         count = min(count, self.grid_width * (in_h // self.config.stride))
         # The peak search runs inside the graph: cheaper than torch calls on its outputs.
-        self.network = make_runner(PeakOutputs(network, count), (self.blank,), backend, device,
-                                   threads)
+        if int8_graph is None:
+            self.network = make_runner(PeakOutputs(network, count), (self.blank,), backend,
+                                       device, threads)
+        else:
+            self.network = OnnxRuntimeRunner(
+                with_peak_search(int8_graph, self.config, count), threads)
+        self.precision = 'fp32' if int8_graph is None else 'int8'
         self.wanted = np.array([name in set(names) for name in self.config.objects])
         self.score_threshold = score_threshold
         self.max_instances = max_instances

@@ -29,9 +29,12 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
+from bbpose_ros.core.pipeline.int8_detector import (cpu_has_int8_dot, int8_graph_path,
+                                                    read_int8_graph)
 from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
@@ -75,10 +78,11 @@ def load_pipeline(models: Mapping[str, ObjectModel],
         torch.set_num_threads(threads)
     names = list(models)
     selector = HypothesisSelector(models, options.box_consistency_weight)
+    detector_weights = detector_weights or DEFAULT_DETECTOR_WEIGHTS
     detector = BoxDetector(
-        load_network(detector_weights or DEFAULT_DETECTOR_WEIGHTS, 'detector', names), names,
-        options.score_threshold, options.max_instances, options.backend, options.device,
-        threads)
+        load_network(detector_weights, 'detector', names), names, options.score_threshold,
+        options.max_instances, options.backend, options.device, threads,
+        int8_graph=detector_int8_graph(options, detector_weights))
     rotation = correspondences = None
     if options.uses_qnet:
         qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
@@ -111,6 +115,28 @@ def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOpt
                                          options.threads or None)
     stage.warm_up(_warm_up_batch(models, options))
     return stage
+
+
+def detector_int8_graph(options: PipelineOptions, detector_weights: Path | str):
+    """
+    Return the int8 graph the detector runs under ``options.detector_precision``, or None (float).
+
+    'int8' reads ``int8_detector.int8_graph_path(detector_weights)`` and raises InputError
+    when it is missing or made from other weights; 'auto' takes it only with the onnxruntime
+    backend on a CPU with int8 dot products, and where it is missing or does not fit runs
+    the float network.
+    """
+    if options.detector_precision == 'fp32':
+        return None
+    path = int8_graph_path(detector_weights)
+    if options.detector_precision == 'int8':
+        return read_int8_graph(path, detector_weights)
+    if options.backend != 'onnxruntime' or not cpu_has_int8_dot():
+        return None
+    try:
+        return read_int8_graph(path, detector_weights)
+    except InputError:
+        return None
 
 
 def _warm_up_batch(models, options):

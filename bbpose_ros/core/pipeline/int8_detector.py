@@ -1,0 +1,161 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The detector's int8 graph: its heatmap network with 8-bit weights and activations.
+
+ONNX Runtime's static quantisation (``training.quantization`` makes the file) turns the
+convolutions into integer ones; a CPU with int8 dot-product instructions (AVX-512 VNNI,
+AVX-VNNI) runs those faster than float ones, a CPU without them does not
+(docs/performance.md). ``detector_precision: auto`` therefore takes the int8 graph only on
+a CPU that has them.
+
+The file (``<detector stem>_int8.onnx`` beside the float weight file) holds the network from
+the (1, H, W, 3) uint8 RGB image to its (1, C, h, w) heatmap logits and (1, 4, h, w) box
+log-sides, and metadata naming the float file it was quantised from (its SHA-256): a graph
+quantised from other weights is refused. The peak search (``detector.peaks``), whose size
+depends on the node's settings, is added in float at load (``with_peak_search``).
+"""
+
+import hashlib
+import io
+from pathlib import Path
+import warnings
+
+import torch
+from torch import nn
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.nets.detector import DetectorConfig, peaks
+
+INT8_KIND = 'bbpose.detector_int8'
+INT8_FORMAT = '1'
+INPUT_NAME = 'images'
+OUTPUT_NAMES = ('heatmap_logits', 'box_log')
+# Instruction-set flags (Linux /proc/cpuinfo) under which ONNX Runtime's int8 kernels use
+# integer dot products.
+INT8_DOT_FLAGS = ('avx512_vnni', 'avx_vnni', 'amx_int8')
+
+
+def int8_graph_path(detector_weights: Path | str) -> Path:
+    """Return where the int8 graph of a float detector file lives: ``<stem>_int8.onnx``."""
+    path = Path(detector_weights)
+    return path.with_name(f'{path.stem}_int8.onnx')
+
+
+def file_sha256(path: Path | str) -> str:
+    """Return the hex SHA-256 of a file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def cpu_has_int8_dot(cpuinfo: str | None = None) -> bool:
+    """
+    Tell whether the CPU has int8 dot-product instructions (``INT8_DOT_FLAGS``).
+
+    Args:
+        cpuinfo: the text of /proc/cpuinfo (default: read it; False where there is none).
+
+    """
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path('/proc/cpuinfo').read_text()
+        except OSError:
+            return False
+    flags = set()
+    for line in cpuinfo.splitlines():
+        if line.startswith('flags'):
+            flags.update(line.partition(':')[2].split())
+    return any(flag in flags for flag in INT8_DOT_FLAGS)
+
+
+def read_int8_graph(path: Path | str, detector_weights: Path | str):
+    """
+    Read an int8 detector graph and check that it was quantised from ``detector_weights``.
+
+    Returns:
+        The onnx.ModelProto.
+
+    Raises:
+        InputError: the file is missing, is not an ONNX model, is not an int8 detector graph
+            of this format, or was quantised from another float weight file.
+
+    """
+    import onnx
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f'int8 detector graph {path} not found; make it with "bbpose train '
+                         f'quantize --weights {detector_weights}"')
+    try:
+        model = onnx.load_from_string(path.read_bytes())
+    except Exception as err:   # protobuf raises its own DecodeError
+        raise InputError(f'int8 detector graph {path} is not a readable ONNX model: '
+                         f'{err}') from err
+    meta = {prop.key: prop.value for prop in model.metadata_props}
+    if meta.get('kind') != INT8_KIND or meta.get('format') != INT8_FORMAT:
+        raise InputError(f'{path} is not an int8 detector graph of format {INT8_FORMAT} '
+                         f'(metadata kind "{meta.get("kind")}", format "{meta.get("format")}")')
+    expected = file_sha256(detector_weights)
+    if meta.get('source_sha256') != expected:
+        raise InputError(f'int8 detector graph {path}: field source_sha256 does not match '
+                         f'{detector_weights} (quantised from other weights); re-run "bbpose '
+                         f'train quantize --weights {detector_weights}"')
+    return model
+
+
+class _PeakSearch(nn.Module):
+    """``peaks`` of given heatmap logits and box log-sides, as a module to export."""
+
+    def __init__(self, count: int) -> None:
+        super().__init__()
+        self.count = count
+
+    def forward(self, heatmap_logits: torch.Tensor,
+                box_log: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Return ``peaks(heatmap_logits, box_log, count)``."""
+        return peaks(heatmap_logits, box_log, self.count)
+
+
+def with_peak_search(model, config: DetectorConfig, count: int) -> bytes:
+    """
+    Append the float peak search of ``count`` peaks a class to an int8 heatmap graph.
+
+    Args:
+        model: the onnx.ModelProto of ``read_int8_graph``.
+        config: the float detector's DetectorConfig (input size, stride, objects).
+        count: peaks per class, as ``detector.PeakOutputs``.
+
+    Returns:
+        The serialised model: (1, H, W, 3) uint8 image -> ``peaks``' scores, cells, sides.
+
+    """
+    import onnx
+    from onnx import compose
+
+    width, height = config.input_size
+    grid = (height // config.stride, width // config.stride)
+    example = (torch.zeros((1, len(config.objects), *grid)), torch.zeros((1, 4, *grid)))
+    opset = next(o.version for o in model.opset_import if o.domain in ('', 'ai.onnx'))
+    buffer = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        torch.onnx.export(_PeakSearch(count), example, buffer, input_names=list(OUTPUT_NAMES),
+                          output_names=['scores', 'cells', 'sides'], opset_version=opset,
+                          dynamo=False)
+    search = onnx.load_from_string(buffer.getvalue())
+    search.ir_version = model.ir_version
+    search = compose.add_prefix(search, 'peaks/')
+    merged = compose.merge_models(model, search,
+                                  io_map=[(name, f'peaks/{name}') for name in OUTPUT_NAMES])
+    return merged.SerializeToString()
