@@ -143,8 +143,8 @@ weights: setup photos
 		--augment strong --lr 3e-4 --backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 \
 		--steps 500 --every 250 --threads 1 --seed 8 --export bbpose_ros/weights/detector.pt \
 		--export-input-size 416,304
-	$(BIN)/bbpose train quantize --weights bbpose_ros/weights/detector.pt \
-		--cache $(CACHE)/scenes_table_23 --images 32
+	$(BIN)/bbpose train quantize --network detector --weights bbpose_ros/weights/detector.pt \
+		--cache $(CACHE)/scenes_table_23
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright \
 		--seed 3 --crops 40000 --crop-size 96 --backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright6 \
@@ -160,6 +160,8 @@ weights: setup photos
 		--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
 		--steps 1500 --every 500 --threads 1 --seed 7 --real-val \
 		--export bbpose_ros/weights/qnet.pt
+	$(BIN)/bbpose train quantize --network qnet --weights bbpose_ros/weights/qnet.pt \
+		--cache $(CACHE)/scenes_table_23
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
 		--seed 3 --crops 24000 --crop-size 96 --dense-size 32 --backgrounds $(PHOTOS) \
 		--inplane-range-deg=-60,60

@@ -110,6 +110,7 @@ def bench_frames(frames, values, warmup):
     options = config.options
     report.update(inference_backend=options.backend,
                   detector_network=pipeline.detector.precision,
+                  qnet_network=getattr(pipeline.rotation_estimator, 'precision', None),
                   inference_threads=options.threads or os.cpu_count(),
                   refine_hypotheses=options.refine_hypotheses if options.refine else 0)
     return report
@@ -149,7 +150,7 @@ def format_frames(report):
                  f'{report["all_objects"]["objects_per_frame"]:.2f}); peak RSS '
                  f'{report["peak_rss_mb"]:.0f} MB; {report["inference_backend"]} with '
                  f'{report["inference_threads"]} threads, detector '
-                 f'{report["detector_network"]}')
+                 f'{report["detector_network"]}, Q-Net {report["qnet_network"]}')
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 

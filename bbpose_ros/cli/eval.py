@@ -25,8 +25,7 @@ from bbpose_ros.core.eval.detection import format_detection_report, score_detect
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.pipeline.options import (DENSE_MASKS, DENSE_TRANSLATIONS,
-                                              DETECTOR_PRECISIONS, PipelineOptions,
-                                              POSE_SOURCES)
+                                              PipelineOptions, POSE_SOURCES, PRECISIONS)
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
 
@@ -112,10 +111,9 @@ def add_pipeline_arguments(parser):
                              'visible mask, or none (colours) (default %(default)s)')
     parser.add_argument('--dense-weights', type=Path, default=None,
                         help='dense net weight file (default: the shipped one)')
-    parser.add_argument('--detector-precision', choices=DETECTOR_PRECISIONS,
-                        default=defaults.detector_precision,
-                        help="the detector's network: fp32, its int8 graph, or auto (int8 on "
-                             'a CPU with int8 dot products) (default %(default)s)')
+    parser.add_argument('--inference-precision', choices=PRECISIONS, default=defaults.precision,
+                        help='the detector and Q-Net: fp32, their int8 graphs, or auto (int8 '
+                             'on a CPU with int8 dot products) (default %(default)s)')
 
 
 def pipeline_options(args):
@@ -130,7 +128,7 @@ def pipeline_options(args):
                                pose_source=args.pose_source,
                                dense_translation=args.dense_translation,
                                dense_mask=args.dense_mask,
-                               detector_precision=args.detector_precision)
+                               precision=args.inference_precision)
     except InputError as err:
         option, _, reason = str(err).partition(': ')
         raise InputError(f'--{option.replace("_", "-")}: {reason}') from err
@@ -224,8 +222,10 @@ def run(args):
                         'dense_translation': args.dense_translation,
                         'dense_mask': args.dense_mask,
                         'dense_weights': _weights_name(args.dense_weights),
-                        'detector_precision': args.detector_precision,
+                        'inference_precision': args.inference_precision,
                         'detector_network': getattr(pipeline.detector, 'precision', None),
+                        'qnet_network': getattr(pipeline.rotation_estimator, 'precision',
+                                                None),
                         'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
     print(format_report(report))
     for level in report.get('sweep', []):

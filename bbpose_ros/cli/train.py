@@ -30,8 +30,9 @@
   crop cell) on a crop cache rendered with ``--dense-size``.
 * ``bbpose train verifier``: the detector's second stage, on the candidates a trained
   detector (``--detector-weights``) finds in a scene cache; writes both stages in one file.
-* ``bbpose train quantize``: the detector's int8 graph (``<weights stem>_int8.onnx``),
-  calibrated on a scene cache's renders; ``detector_precision`` chooses it at run time.
+* ``bbpose train quantize``: the int8 graph of the detector or Q-Net (``<weights
+  stem>_int8.onnx``), calibrated on a scene cache's renders; the ``inference_precision``
+  parameter chooses it at run time.
 * ``bbpose train fig3``: the paper's Fig. 3, Q-Net with and without q-normalization, same
   initialisation and samples, losses in one plot.
 """
@@ -133,17 +134,21 @@ def add_parser(subparsers):
     _verifier_options(verifier)
     verifier.set_defaults(func=run_verifier)
     quantize = sub.add_parser(
-        'quantize', help="quantise the detector's network to int8",
-        description='Write the int8 graph of a detector weight file (ONNX Runtime static '
-                    'quantisation), its activation ranges measured on renders of a scene '
-                    'cache; the node runs it with detector_precision int8 (or auto).')
+        'quantize', help='quantise the detector or Q-Net to int8',
+        description='Write the int8 graph of a detector or Q-Net weight file (ONNX Runtime '
+                    'static quantisation), its activation ranges measured on renders of a '
+                    'scene cache; the node runs it with inference_precision int8 (or auto).')
+    quantize.add_argument('--network', choices=('detector', 'qnet'), required=True,
+                          help='which network')
     quantize.add_argument('--weights', type=Path, default=None,
-                          help='float detector file (default: the shipped detector.pt)')
+                          help='float weight file (default: the shipped detector.pt or '
+                               'qnet.pt)')
     quantize.add_argument('--cache', type=Path, required=True,
-                          help='scene cache whose first renders calibrate (never real '
-                               'evaluation frames)')
-    quantize.add_argument('--images', type=int, default=32,
-                          help='calibration images (default %(default)s)')
+                          help='scene cache whose renders calibrate (never real evaluation '
+                               'frames)')
+    quantize.add_argument('--inputs', type=int, default=None,
+                          help='calibration inputs: frames for the detector (default 32), '
+                               'instance crops for Q-Net (default 256)')
     quantize.add_argument('--out', type=Path, default=None,
                           help='the .onnx to write (default: <weights stem>_int8.onnx beside '
                                'the weights)')
@@ -589,24 +594,31 @@ def run_dense(args):
 
 
 def run_quantize(args):
-    """Write the detector's int8 graph, calibrated on a scene cache."""
+    """Write the int8 graph of the detector or Q-Net, calibrated on a scene cache."""
     import shlex
     import sys
 
-    from bbpose_ros.core.pipeline.int8_detector import int8_graph_path
-    from bbpose_ros.core.pipeline.weights import DEFAULT_DETECTOR_WEIGHTS, load_network
+    from bbpose_ros.core.pipeline.int8_graphs import int8_graph_path
+    from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS,
+                                                  DEFAULT_QNET_WEIGHTS, load_network)
     from bbpose_ros.core.training.cache import TrainingCache
-    from bbpose_ros.core.training.quantization import calibration_images, quantize_detector
-    if args.images < 1:
-        raise InputError(f'--images must be at least 1, got {args.images}')
-    weights = args.weights or DEFAULT_DETECTOR_WEIGHTS
-    input_size = load_network(weights, 'detector').config.input_size
+    from bbpose_ros.core.training import quantization
+    count = args.inputs or (32 if args.network == 'detector' else 256)
+    if count < 1:
+        raise InputError(f'--inputs must be at least 1, got {count}')
+    default = DEFAULT_DETECTOR_WEIGHTS if args.network == 'detector' else DEFAULT_QNET_WEIGHTS
+    weights = args.weights or default
+    config = load_network(weights, args.network).config
     cache = TrainingCache(args.cache, max_shards=1)
-    images = calibration_images(cache.images, input_size, args.images)
-    out = quantize_detector(weights, images, args.out or int8_graph_path(weights),
-                            command=shlex.join(['bbpose', *sys.argv[1:]]))
-    print(f'int8 detector graph written to {out} ({out.stat().st_size / 1e6:.2f} MB, '
-          f'{len(images)} calibration images of {args.cache})')
+    if args.network == 'detector':
+        inputs = (quantization.calibration_images(cache.images, config.input_size, count),)
+    else:
+        inputs = quantization.calibration_crops(cache, config, count)
+    out = quantization.quantize_network(weights, args.network, inputs,
+                                        args.out or int8_graph_path(weights),
+                                        command=shlex.join(['bbpose', *sys.argv[1:]]))
+    print(f'int8 {args.network} graph written to {out} ({out.stat().st_size / 1e6:.2f} MB, '
+          f'{len(inputs[0])} calibration inputs from {args.cache})')
     return 0
 
 

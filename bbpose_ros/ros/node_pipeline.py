@@ -52,7 +52,7 @@ def build_node_pipeline(config: NodeConfig,
     """
     Build the NodePipeline of a NodeConfig: meshes, the learned stages, refinement, tracking.
 
-    ``log`` gets a line naming the detector's network (fp32 or int8) and one for each
+    ``log`` gets a line naming what runs the detector and Q-Net (fp32 or int8) and one for each
     viewpoint model the refiner builds (once per mesh, then cached). With ``tracking`` the
     pipeline is a PoseTracker around the PosePipeline.
 
@@ -72,8 +72,9 @@ def build_node_pipeline(config: NodeConfig,
         raise InputError(f'parameters detector_weights / qnet_weights / dense_weights (empty: '
                          f'the shipped files): {err}') from err
     if log is not None:
-        log(f'detector network: {pipeline.detector.precision} (detector_precision '
-            f'{config.options.detector_precision})')
+        qnet = getattr(pipeline.rotation_estimator, 'precision', 'not used')
+        log(f'networks: detector {pipeline.detector.precision}, Q-Net {qnet} '
+            f'(inference_precision {config.options.precision})')
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)

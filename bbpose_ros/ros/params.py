@@ -217,10 +217,11 @@ PARAMETERS = {
     'inference_backend': option_spec(
         'backend', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         'configure'),
-    'detector_precision': option_spec(
-        'detector_precision', "The detector's network: fp32, int8 (its int8 graph "
-        '<detector_weights stem>_int8.onnx, onnxruntime only) or auto (int8 on a CPU with '
-        'int8 dot-product instructions where that graph exists, else fp32).', 'configure'),
+    'inference_precision': option_spec(
+        'precision', 'What the detector and Q-Net run as: fp32, int8 (the int8 graph '
+        '<weights stem>_int8.onnx beside each weight file; onnxruntime only) or auto (int8 on '
+        'a CPU with int8 dot-product instructions where those graphs exist, else fp32).',
+        'configure'),
     'device': option_spec(
         'device', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
         'backend).', 'configure'),

@@ -30,7 +30,7 @@ import torch
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, peak_boxes, PeakOutputs
 from bbpose_ros.core.pipeline.backends import make_runner, OnnxRuntimeRunner
-from bbpose_ros.core.pipeline.int8_detector import with_peak_search
+from bbpose_ros.core.pipeline.int8_graphs import with_peak_search
 from bbpose_ros.core.pipeline.poses import Detection
 
 
@@ -48,7 +48,7 @@ class BoxDetector:
         score_threshold: lowest detection score reported.
         max_instances: most detections per object name.
         backend, device, threads: see ``backends.make_runner``.
-        int8_graph: the network's int8 graph (``int8_detector.read_int8_graph``, checked
+        int8_graph: the network's int8 graph (``int8_graphs.read_int8_graph``, checked
             against the network's weight file by the caller), run by ONNX Runtime in place of
             the float network; None: the float network. The second stage stays float.
 

@@ -33,8 +33,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
-from bbpose_ros.core.pipeline.int8_detector import (cpu_has_int8_dot, int8_graph_path,
-                                                    read_int8_graph)
+from bbpose_ros.core.pipeline.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
+                                                  read_int8_graph)
 from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
@@ -82,14 +82,16 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     detector = BoxDetector(
         load_network(detector_weights, 'detector', names), names, options.score_threshold,
         options.max_instances, options.backend, options.device, threads,
-        int8_graph=detector_int8_graph(options, detector_weights))
+        int8_graph=int8_graph(options, detector_weights, 'detector'))
     rotation = correspondences = None
     if options.uses_qnet:
-        qnet = load_network(qnet_weights or DEFAULT_QNET_WEIGHTS, 'qnet', names)
+        qnet_weights = qnet_weights or DEFAULT_QNET_WEIGHTS
+        qnet = load_network(qnet_weights, 'qnet', names)
         # Every hypothesis is needed when they are ranked by the box or several are refined.
         ranked = selector.weight > 0 or options.candidates_per_detection > 1
         rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
-                                         all_hypotheses=qnet.config.hypotheses > 1 and ranked)
+                                         all_hypotheses=qnet.config.hypotheses > 1 and ranked,
+                                         int8_graph=int8_graph(options, qnet_weights, 'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
     if options.runs_dense:
         correspondences = load_correspondences(models, options, dense_weights)
@@ -117,24 +119,24 @@ def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOpt
     return stage
 
 
-def detector_int8_graph(options: PipelineOptions, detector_weights: Path | str):
+def int8_graph(options: PipelineOptions, weights: Path | str, network: str):
     """
-    Return the int8 graph the detector runs under ``options.detector_precision``, or None (float).
+    Return the int8 graph ``network`` runs under ``options.precision``, or None (float).
 
-    'int8' reads ``int8_detector.int8_graph_path(detector_weights)`` and raises InputError
-    when it is missing or made from other weights; 'auto' takes it only with the onnxruntime
-    backend on a CPU with int8 dot products, and where it is missing or does not fit runs
-    the float network.
+    'int8' reads ``int8_graphs.int8_graph_path(weights)`` and raises InputError when it is
+    missing or made from other weights; 'auto' takes it only with the onnxruntime backend on
+    a CPU with int8 dot products, and where it is missing or does not fit runs the float
+    network.
     """
-    if options.detector_precision == 'fp32':
+    if options.precision == 'fp32' or options.backend != 'onnxruntime':
         return None
-    path = int8_graph_path(detector_weights)
-    if options.detector_precision == 'int8':
-        return read_int8_graph(path, detector_weights)
-    if options.backend != 'onnxruntime' or not cpu_has_int8_dot():
+    path = int8_graph_path(weights)
+    if options.precision == 'int8':
+        return read_int8_graph(path, weights, network)
+    if not cpu_has_int8_dot():
         return None
     try:
-        return read_int8_graph(path, detector_weights)
+        return read_int8_graph(path, weights, network)
     except InputError:
         return None
 

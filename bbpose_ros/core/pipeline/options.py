@@ -36,7 +36,7 @@ from bbpose_ros.core.refine.refiner import RefinerConfig
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')
 DENSE_TRANSLATIONS = ('pnp', 'bbox_equation', 'both')
 DENSE_MASKS = ('amodal', 'visible', 'none')
-DETECTOR_PRECISIONS = ('auto', 'fp32', 'int8')
+PRECISIONS = ('auto', 'fp32', 'int8')
 
 
 def _option(default: Any, low: float | None = None, high: float | None = None,
@@ -79,10 +79,10 @@ class PipelineOptions:
             foreground: 'amodal', 'visible' or 'none' (the colours alone). The dense net
             runs when its poses are candidates or its mask is used.
         backend: what runs the networks, one of ``backends.BACKENDS``.
-        detector_precision: 'fp32' (the float network), 'int8' (its int8 graph beside the
-            weight file, ``int8_detector``; onnxruntime only) or 'auto' (int8 where the CPU
-            has int8 dot-product instructions and a graph of these weights exists, else
-            fp32).
+        precision: what the detector and Q-Net run as: 'fp32' (the float networks), 'int8'
+            (the int8 graph beside each weight file, ``int8_graphs``; onnxruntime only) or
+            'auto' (each network's int8 graph where the CPU has int8 dot-product
+            instructions and a graph of those weights exists, else fp32).
         device: torch device, 'cpu', 'cuda' or 'cuda:N' (onnxruntime runs on the CPU only).
         threads: intra-op threads of the backend; 0: its default (one per core).
 
@@ -106,7 +106,7 @@ class PipelineOptions:
     dense_translation: str = _option('pnp', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)
     backend: str = _option('onnxruntime', choices=BACKENDS)
-    detector_precision: str = _option('auto', choices=DETECTOR_PRECISIONS)
+    precision: str = _option('auto', choices=PRECISIONS)
     device: str = _option('cpu')
     threads: int = _option(0, 0, 256)
 
@@ -116,9 +116,9 @@ class PipelineOptions:
         if self.backend != 'torch' and self.device != 'cpu':
             raise InputError(f'backend / device: {self.backend} runs on the CPU only; use '
                              f'the torch backend for device {self.device}')
-        if self.detector_precision == 'int8' and self.backend != 'onnxruntime':
-            raise InputError(f'detector_precision / backend: the int8 graph runs on '
-                             f'onnxruntime, not {self.backend}')
+        if self.precision == 'int8' and self.backend != 'onnxruntime':
+            raise InputError(f'precision / backend: the int8 graphs run on onnxruntime, not '
+                             f'{self.backend}')
 
     @property
     def uses_qnet(self) -> bool:

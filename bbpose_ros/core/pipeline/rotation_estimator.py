@@ -36,7 +36,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.qnet import HypothesisOutputs, QNet
-from bbpose_ros.core.pipeline.backends import make_runner
+from bbpose_ros.core.pipeline.backends import make_runner, OnnxRuntimeRunner
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 
 
@@ -53,26 +53,34 @@ class QNetRotationEstimator:
         backend, device, threads: see ``backends.make_runner``.
         all_hypotheses: return every hypothesis of a multi-hypothesis network as
             RotationHypotheses (N, H) instead of its best-scored rotations (N, 3, 3).
+        int8_graph: the network's int8 graph (``int8_graphs.read_int8_graph``, checked
+            against its weight file by the caller), run by ONNX Runtime in place of the
+            float network; None: the float network.
+
+    Attributes:
+        precision: 'int8' or 'fp32', what runs the network.
 
     """
 
     def __init__(self, network: QNet, backend: str = 'onnxruntime',
                  device: str | torch.device = 'cpu', threads: int | None = None,
-                 all_hypotheses: bool = False) -> None:
+                 all_hypotheses: bool = False, int8_graph=None) -> None:
         self.config = network.config
         if self.config.sharing == 'per_object' and backend != 'torch':
             raise InputError(f'a per_object Q-Net runs only on the torch backend, not on '
                              f'{backend}')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
-        # The run leaves out the q-normalization layer: quaternions are only turned into
-        # matrices here, and quat_wxyz_to_matrix takes any length (three kernels fewer).
-        network = copy.deepcopy(network)
-        network.normalize = nn.Identity()
         self.all_hypotheses = all_hypotheses
-        if all_hypotheses:
-            network = HypothesisOutputs(network)
-        self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
-                                   dynamic_batch=True)
+        self.precision = 'fp32' if int8_graph is None else 'int8'
+        # The int8 graph holds every hypothesis; the best is picked here when only it is
+        # wanted.
+        self._pick_best = int8_graph is not None and not all_hypotheses
+        if int8_graph is None:
+            self.network = make_runner(run_network(network, all_hypotheses),
+                                       self._blank_batch(1), backend, device, threads,
+                                       dynamic_batch=True)
+        else:
+            self.network = OnnxRuntimeRunner(int8_graph.SerializeToString(), threads)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Sequence[Detection]) -> np.ndarray | RotationHypotheses:
@@ -87,6 +95,9 @@ class QNetRotationEstimator:
                               self.config.crop_size)
         index = np.array([self.index[d.object_name] for d in detections], dtype=np.int64)
         outputs = self.network(crops, index)
+        if self._pick_best:
+            quaternions, logits = outputs
+            outputs = quaternions[torch.arange(len(quaternions)), logits.argmax(dim=1)]
         q_wxyz = (outputs[0] if self.all_hypotheses else outputs).cpu().numpy().reshape(-1, 4)
         if self.config.rotation_target == 'allocentric':
             # R_ego = V R_allo, composed as quaternions: fewer array operations than matrices.
@@ -113,3 +124,17 @@ class QNetRotationEstimator:
         """
         for count in range(1, max_batch + 1):
             self.network(*self._blank_batch(count))
+
+
+def run_network(network: QNet, all_hypotheses: bool = True) -> nn.Module:
+    """
+    Return the copy of ``network`` an estimator runs (and an int8 graph holds, with all).
+
+    It leaves out the q-normalization layer: quaternions are only turned into matrices here,
+    and ``quat_wxyz_to_matrix`` takes any length (three kernels fewer). With
+    ``all_hypotheses`` its outputs are every hypothesis (``HypothesisOutputs``: (N, H, 4)
+    quaternions and (N, H) logits), else the best-scored (N, 4) quaternions.
+    """
+    network = copy.deepcopy(network)
+    network.normalize = nn.Identity()
+    return HypothesisOutputs(network) if all_hypotheses else network

@@ -13,12 +13,13 @@
 # limitations under the License.
 
 """
-Quantise a trained detector to the int8 graph ``pipeline.int8_detector`` runs.
+Quantise a trained detector or Q-Net to the int8 graph ``pipeline.int8_graphs`` runs.
 
 ONNX Runtime's static quantisation: int8 weights per output channel, uint8 activations whose
-ranges (min / max) are measured on calibration images, in the QOperator format (QLinearConv
+ranges (min / max) are measured on calibration inputs, in the QOperator format (QLinearConv
 nodes: the format whose integer kernels ONNX Runtime runs fastest on the CPU). Calibrate on
-renders (a scene cache), never on evaluation frames.
+renders (a scene cache: its frames for the detector, its instances' crops for Q-Net), never
+on evaluation frames.
 """
 
 from contextlib import contextmanager
@@ -32,9 +33,15 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.backends import export_onnx
-from bbpose_ros.core.pipeline.int8_detector import (file_sha256, INPUT_NAME, INT8_FORMAT,
-                                                    INT8_KIND, OUTPUT_NAMES)
+from bbpose_ros.core.pipeline.int8_graphs import (file_sha256, INPUT_NAMES, INT8_FORMAT,
+                                                  int8_kind, OUTPUT_NAMES)
+from bbpose_ros.core.pipeline.rotation_estimator import run_network
 from bbpose_ros.core.pipeline.weights import load_network
+
+# Q-Net calibration crops: boxes jittered as a detector's (per-side error / box size, as
+# Q-Net trains), fed in batches of this size.
+CROP_BOX_SIGMA = 0.05
+CROP_BATCH = 16
 
 
 def calibration_images(frames: np.ndarray, input_size: tuple[int, int],
@@ -55,14 +62,42 @@ def calibration_images(frames: np.ndarray, input_size: tuple[int, int],
                      for frame in frames[:count]])
 
 
-def quantize_detector(weights: Path | str, images: np.ndarray, out: Path | str,
-                      command: str = '') -> Path:
+def calibration_crops(cache, config, count: int,
+                      seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """
-    Write the int8 graph of a float detector file, calibrated on ``images``.
+    Make Q-Net's calibration inputs: crops of ``count`` instances at least 30 % visible.
 
     Args:
-        weights: the float detector weight file (.pt).
-        images: (N, H, W, 3) uint8 RGB calibration images at the detector's input size.
+        cache: a ``training.cache.TrainingCache``.
+        config: Q-Net's QNetConfig (objects, crop size, context).
+        count: instances (at most those of Q-Net's objects in the cache).
+        seed: which instances, and the box jitter.
+
+    Returns:
+        (n, S, S, 3) uint8 crops and their (n,) int64 indices into ``config.objects``.
+
+    """
+    index = {name: k for k, name in enumerate(config.objects)}
+    known = np.array([index.get(name, -1) for name in cache.objects])[cache.object]
+    rng = np.random.default_rng(seed)
+    chosen = np.flatnonzero((cache.visib >= 0.3) & (known >= 0))
+    ids = rng.choice(chosen, min(count, len(chosen)), replace=False)
+    crops, _ = cache.input_crops(ids, rng, CROP_BOX_SIGMA, config.crop_size, config.context)
+    return crops, known[ids].astype(np.int64)
+
+
+def quantize_network(weights: Path | str, network_kind: str,
+                     inputs: tuple[np.ndarray, ...], out: Path | str,
+                     command: str = '') -> Path:
+    """
+    Write the int8 graph of a float weight file, calibrated on ``inputs``.
+
+    Args:
+        weights: the float weight file (.pt).
+        network_kind: 'detector' or 'qnet'.
+        inputs: the calibration inputs as the graph takes them (``int8_graphs``): for the
+            detector ((N, H, W, 3) uint8 images at its input size,), for Q-Net ((N, S, S, 3)
+            uint8 crops, (N,) int64 object indices of the file's ``objects``).
         out: the .onnx file to write (replaced whole: written beside it, then renamed).
         command: the command line that made it, kept in the file's metadata.
 
@@ -70,7 +105,7 @@ def quantize_detector(weights: Path | str, images: np.ndarray, out: Path | str,
         ``out`` as a Path.
 
     Raises:
-        InputError: unreadable weights, or images not at the detector's input size.
+        InputError: unreadable weights, or inputs of the wrong shape.
 
     """
     from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod,
@@ -78,37 +113,42 @@ def quantize_detector(weights: Path | str, images: np.ndarray, out: Path | str,
     from onnxruntime.quantization.shape_inference import quant_pre_process
     import onnx
 
-    network = load_network(weights, 'detector')
-    width, height = network.config.input_size
-    if images.ndim != 4 or images.shape[1:] != (height, width, 3) or images.dtype != np.uint8:
-        raise InputError(f'calibration images must be (N, {height}, {width}, 3) uint8, got '
-                         f'{images.shape} {images.dtype}')
+    network = load_network(weights, network_kind)
+    _check_inputs(network, network_kind, inputs)
+    names = INPUT_NAMES[network_kind]
+    batch = 1 if network_kind == 'detector' else CROP_BATCH
+    if network_kind == 'qnet':
+        network = run_network(network, all_hypotheses=True)
 
     class Reader(CalibrationDataReader):
         def __init__(self):
-            self.images = iter(images)
+            self.start = 0
 
         def get_next(self):
-            image = next(self.images, None)
-            return None if image is None else {INPUT_NAME: image[None]}
+            if self.start >= len(inputs[0]):
+                return None
+            self.start += batch
+            return {name: x[self.start - batch:self.start] for name, x in zip(names, inputs)}
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as folder:
         float_path, prepared_path = Path(folder, 'float.onnx'), Path(folder, 'prepared.onnx')
-        float_path.write_bytes(export_onnx(network, (images[:1],), [INPUT_NAME], OUTPUT_NAMES))
+        float_path.write_bytes(export_onnx(network, tuple(x[:1] for x in inputs), names,
+                                           OUTPUT_NAMES[network_kind],
+                                           dynamic_batch=network_kind == 'qnet'))
         quant_pre_process(str(float_path), str(prepared_path))
         int8_path = Path(folder, 'int8.onnx')
         with _root_log_level(logging.ERROR):
-            # It warns, with the whole type, that the uint8 image input is not quantised.
+            # It warns, with the whole type, that the uint8 and int64 inputs are not quantised.
             quantize_static(str(prepared_path), str(int8_path), Reader(),
                             quant_format=QuantFormat.QOperator, per_channel=True,
                             activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
                             calibrate_method=CalibrationMethod.MinMax)
         model = onnx.load(str(int8_path))
-    meta = {'kind': INT8_KIND, 'format': INT8_FORMAT, 'source_sha256': file_sha256(weights),
-            'source_file': Path(weights).name, 'input_size': f'{width},{height}',
-            'calibration_images': str(len(images)), 'command': command}
+    meta = {'kind': int8_kind(network_kind), 'format': INT8_FORMAT,
+            'source_sha256': file_sha256(weights), 'source_file': Path(weights).name,
+            'calibration_inputs': str(len(inputs[0])), 'command': command}
     del model.metadata_props[:]
     for key, value in meta.items():
         model.metadata_props.add(key=key, value=value)
@@ -116,6 +156,23 @@ def quantize_detector(weights: Path | str, images: np.ndarray, out: Path | str,
     partial.write_bytes(model.SerializeToString())
     os.replace(partial, out)
     return out
+
+
+def _check_inputs(network, network_kind, inputs):
+    """Raise InputError unless ``inputs`` are what the network's graph takes."""
+    if network_kind == 'detector':
+        width, height = network.config.input_size
+        expected = [((height, width, 3), np.uint8)]
+    else:
+        size = network.config.crop_size
+        expected = [((size, size, 3), np.uint8), ((), np.int64)]
+    shapes = [(x.shape[1:], x.dtype) for x in inputs]
+    if len(inputs) != len(expected) or any(
+            shape != want or dtype != want_dtype
+            for (shape, dtype), (want, want_dtype) in zip(shapes, expected)) \
+            or len({len(x) for x in inputs}) != 1 or not len(inputs[0]):
+        raise InputError(f'calibration inputs of the {network_kind} must be (N, *shape) '
+                         f'{expected}, got {[(x.shape, x.dtype) for x in inputs]}')
 
 
 @contextmanager

@@ -13,19 +13,24 @@
 # limitations under the License.
 
 """
-The detector's int8 graph: its heatmap network with 8-bit weights and activations.
+Int8 graphs of the detector and Q-Net: their networks with 8-bit weights and activations.
 
-ONNX Runtime's static quantisation (``training.quantization`` makes the file) turns the
-convolutions into integer ones; a CPU with int8 dot-product instructions (AVX-512 VNNI,
-AVX-VNNI) runs those faster than float ones, a CPU without them does not
-(docs/performance.md). ``detector_precision: auto`` therefore takes the int8 graph only on
+ONNX Runtime's static quantisation (``training.quantization`` makes the files) turns the
+convolutions and fully connected layers into integer ones; a CPU with int8 dot-product
+instructions (AVX-512 VNNI, AVX-VNNI) runs those faster than float ones, a CPU without them
+does not (docs/performance.md). ``precision: auto`` therefore takes the int8 graphs only on
 a CPU that has them.
 
-The file (``<detector stem>_int8.onnx`` beside the float weight file) holds the network from
-the (1, H, W, 3) uint8 RGB image to its (1, C, h, w) heatmap logits and (1, 4, h, w) box
-log-sides, and metadata naming the float file it was quantised from (its SHA-256): a graph
-quantised from other weights is refused. The peak search (``detector.peaks``), whose size
-depends on the node's settings, is added in float at load (``with_peak_search``).
+A graph file (``<weights stem>_int8.onnx`` beside the float weight file) holds metadata
+naming the float file it was quantised from (its SHA-256): a graph quantised from other
+weights is refused. What it computes, by network kind (``INPUT_NAMES`` -> ``OUTPUT_NAMES``):
+
+* 'detector': the (1, H, W, 3) uint8 RGB image -> its (1, C, h, w) heatmap logits and
+  (1, 4, h, w) box log-sides. The peak search (``detector.peaks``), whose size depends on
+  the node's settings, is added in float at load (``with_peak_search``).
+* 'qnet': (N, S, S, 3) uint8 crops and their (N,) int64 object indices -> every
+  hypothesis, (N, K, 4) unnormalised wxyz quaternions and (N, K) logits
+  (``rotation_estimator.hypothesis_network``); any batch size.
 """
 
 import hashlib
@@ -39,18 +44,23 @@ from torch import nn
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.detector import DetectorConfig, peaks
 
-INT8_KIND = 'bbpose.detector_int8'
 INT8_FORMAT = '1'
-INPUT_NAME = 'images'
-OUTPUT_NAMES = ('heatmap_logits', 'box_log')
+INPUT_NAMES = {'detector': ('images',), 'qnet': ('crops', 'object_index')}
+OUTPUT_NAMES = {'detector': ('heatmap_logits', 'box_log'),
+                'qnet': ('quaternions_wxyz', 'hypothesis_logits')}
 # Instruction-set flags (Linux /proc/cpuinfo) under which ONNX Runtime's int8 kernels use
 # integer dot products.
 INT8_DOT_FLAGS = ('avx512_vnni', 'avx_vnni', 'amx_int8')
 
 
-def int8_graph_path(detector_weights: Path | str) -> Path:
-    """Return where the int8 graph of a float detector file lives: ``<stem>_int8.onnx``."""
-    path = Path(detector_weights)
+def int8_kind(network: str) -> str:
+    """Return the metadata ``kind`` of a network's int8 graph ('detector' or 'qnet')."""
+    return f'bbpose.{network}_int8'
+
+
+def int8_graph_path(weights: Path | str) -> Path:
+    """Return where the int8 graph of a float weight file lives: ``<stem>_int8.onnx``."""
+    path = Path(weights)
     return path.with_name(f'{path.stem}_int8.onnx')
 
 
@@ -79,38 +89,37 @@ def cpu_has_int8_dot(cpuinfo: str | None = None) -> bool:
     return any(flag in flags for flag in INT8_DOT_FLAGS)
 
 
-def read_int8_graph(path: Path | str, detector_weights: Path | str):
+def read_int8_graph(path: Path | str, weights: Path | str, network: str):
     """
-    Read an int8 detector graph and check that it was quantised from ``detector_weights``.
+    Read the int8 graph of a ``network`` ('detector', 'qnet') quantised from ``weights``.
 
     Returns:
         The onnx.ModelProto.
 
     Raises:
-        InputError: the file is missing, is not an ONNX model, is not an int8 detector graph
-            of this format, or was quantised from another float weight file.
+        InputError: the file is missing, is not an ONNX model, is not an int8 graph of this
+            network and format, or was quantised from another float weight file.
 
     """
     import onnx
 
     path = Path(path)
     if not path.is_file():
-        raise InputError(f'int8 detector graph {path} not found; make it with "bbpose train '
-                         f'quantize --weights {detector_weights}"')
+        raise InputError(f'int8 {network} graph {path} not found; make it with "bbpose train '
+                         f'quantize --network {network} --weights {weights}"')
     try:
         model = onnx.load_from_string(path.read_bytes())
     except Exception as err:   # protobuf raises its own DecodeError
-        raise InputError(f'int8 detector graph {path} is not a readable ONNX model: '
+        raise InputError(f'int8 {network} graph {path} is not a readable ONNX model: '
                          f'{err}') from err
     meta = {prop.key: prop.value for prop in model.metadata_props}
-    if meta.get('kind') != INT8_KIND or meta.get('format') != INT8_FORMAT:
-        raise InputError(f'{path} is not an int8 detector graph of format {INT8_FORMAT} '
+    if meta.get('kind') != int8_kind(network) or meta.get('format') != INT8_FORMAT:
+        raise InputError(f'{path} is not an int8 {network} graph of format {INT8_FORMAT} '
                          f'(metadata kind "{meta.get("kind")}", format "{meta.get("format")}")')
-    expected = file_sha256(detector_weights)
-    if meta.get('source_sha256') != expected:
-        raise InputError(f'int8 detector graph {path}: field source_sha256 does not match '
-                         f'{detector_weights} (quantised from other weights); re-run "bbpose '
-                         f'train quantize --weights {detector_weights}"')
+    if meta.get('source_sha256') != file_sha256(weights):
+        raise InputError(f'int8 {network} graph {path}: field source_sha256 does not match '
+                         f'{weights} (quantised from other weights); re-run "bbpose train '
+                         f'quantize --network {network} --weights {weights}"')
     return model
 
 
@@ -132,7 +141,7 @@ def with_peak_search(model, config: DetectorConfig, count: int) -> bytes:
     Append the float peak search of ``count`` peaks a class to an int8 heatmap graph.
 
     Args:
-        model: the onnx.ModelProto of ``read_int8_graph``.
+        model: the detector's onnx.ModelProto of ``read_int8_graph``.
         config: the float detector's DetectorConfig (input size, stride, objects).
         count: peaks per class, as ``detector.PeakOutputs``.
 
@@ -150,12 +159,14 @@ def with_peak_search(model, config: DetectorConfig, count: int) -> bytes:
     buffer = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        torch.onnx.export(_PeakSearch(count), example, buffer, input_names=list(OUTPUT_NAMES),
+        torch.onnx.export(_PeakSearch(count), example, buffer,
+                          input_names=list(OUTPUT_NAMES['detector']),
                           output_names=['scores', 'cells', 'sides'], opset_version=opset,
                           dynamo=False)
     search = onnx.load_from_string(buffer.getvalue())
     search.ir_version = model.ir_version
     search = compose.add_prefix(search, 'peaks/')
     merged = compose.merge_models(model, search,
-                                  io_map=[(name, f'peaks/{name}') for name in OUTPUT_NAMES])
+                                  io_map=[(name, f'peaks/{name}')
+                                          for name in OUTPUT_NAMES['detector']])
     return merged.SerializeToString()
