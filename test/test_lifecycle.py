@@ -19,6 +19,8 @@ One node (``autostart: false``) serves the module; the tests run in file order, 
 starting from the state the previous one left.
 """
 
+import time
+
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -26,7 +28,7 @@ import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
-from test_ros_support import GraphClient, NodeLog, use_private_domain, weight_files
+from test_ros_support import GraphClient, NodeLog, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -38,6 +40,7 @@ from bbpose_ros.ros.diagnostics import counts_from_status
 
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
+REPUBLISH_S = 2.0   # seconds between publications of a frame not answered yet
 
 
 @pytest.fixture(scope='module')
@@ -79,19 +82,28 @@ def set_parameter(client, name, value):
 
 
 def answered(client):
-    """Publish a good frame with a new stamp; returns its MarkerArray (None if none came)."""
+    """
+    Publish a good frame with a new stamp; returns its MarkerArray (None if none came).
+
+    The frame is published again every REPUBLISH_S until answered, as a camera streams: a
+    first message sent while discovery is still matching the node's new subscription to
+    this publisher may be dropped by DDS, which says nothing about the node.
+    """
     client.stamp_s += 1
     image, info = client.pair
     for message in (image, info):
         message.header.stamp.sec, message.header.stamp.nanosec = client.stamp_s, 0
     stamp = stamp_to_ns(image.header.stamp)
-    client.image.publish(image)
-    client.info.publish(info)
 
     def answer():
         return next((m for m in client.received[MARKERS]
                      if stamp_to_ns(m.markers[0].header.stamp) == stamp), None)
-    client.spin_until(lambda: answer() is not None)
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        client.image.publish(image)
+        client.info.publish(info)
+        if client.spin_until(lambda: answer() is not None, timeout_s=REPUBLISH_S):
+            break
     return answer()
 
 
