@@ -142,7 +142,7 @@ weights: setup photos
 		--run-dir $(CACHE)/runs/detector_table2_ft --init $(CACHE)/runs/detector_table21.pt \
 		--augment strong --lr 3e-4 --backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 \
 		--steps 500 --every 250 --threads 1 --seed 8 --export bbpose_ros/weights/detector.pt \
-		--export-input-size 416,304
+		--export-input-size 480,352
 	$(BIN)/bbpose train quantize --network detector --weights bbpose_ros/weights/detector.pt \
 		--cache $(CACHE)/scenes_table_23
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_upright \

@@ -142,7 +142,7 @@ def test_int8_qnet_turns_real_crops_as_fp32_does(qnet, lmo_frames):
 def test_quantize_writes_a_checked_graph_or_nothing(network, tmp_path):
     width, height = network.config.input_size
     rng = np.random.default_rng(0)
-    frames = rng.integers(0, 256, (3, 352, 480, 3), dtype=np.uint8)   # any calibration input
+    frames = rng.integers(0, 256, (3, 300, 400, 3), dtype=np.uint8)   # any calibration input
     images = calibration_images(frames, (width, height), 2)
     assert images.shape == (2, height, width, 3)
     out = quantize_network(DEFAULT_DETECTOR_WEIGHTS, 'detector', (images,),

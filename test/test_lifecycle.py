@@ -65,8 +65,18 @@ def graph(lmo, lmo_root, tmp_path_factory):
 
 
 def state(client):
-    """Return the node's lifecycle state label, from its get_state service."""
-    return client.call(GetState, f'{OUT}/get_state', GetState.Request()).current_state.label
+    """
+    Return the node's lifecycle state label, from its get_state service.
+
+    Asked again when no answer comes (get_state changes nothing): a request sent while DDS
+    is still matching the service's reply writer to this client may go unanswered.
+    """
+    for _ in range(3):
+        response = client.call(GetState, f'{OUT}/get_state', GetState.Request(),
+                               timeout_s=TIMEOUT_S / 3)
+        if response is not None:
+            return response.current_state.label
+    return None
 
 
 def transition(client, transition_id):
