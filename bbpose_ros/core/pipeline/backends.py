@@ -74,11 +74,42 @@ class TorchRunner:
             return self.network(*[torch.from_numpy(x).to(self.device) for x in inputs])
 
 
+def export_module(module: nn.Module, example: Sequence[torch.Tensor],
+                  input_names: Sequence[str], output_names: Sequence[str],
+                  dynamic_batch: bool = False, opset_version: int | None = None) -> bytes:
+    """
+    Export an eval-mode module to ONNX, in memory, traced once with ``example`` tensors.
+
+    Args:
+        module: its forward has no data-dependent control flow.
+        example: the forward's inputs.
+        input_names, output_names: the graph's names, in the forward's order.
+        dynamic_batch: whether the first axis of every input and output may vary.
+        opset_version: the ONNX opset (None: the exporter's default), e.g. to match a graph
+            the export is merged with.
+
+    Returns:
+        The serialised ONNX model.
+
+    """
+    names = list(input_names) + list(output_names)
+    batch_axes = {name: {0: 'batch'} for name in names} if dynamic_batch else None
+    model = io.BytesIO()
+    with warnings.catch_warnings():
+        # The TorchScript-based exporter (dynamo=False): the newer torch.export one is far
+        # slower to export, too slow for a node's start.
+        warnings.simplefilter('ignore')
+        torch.onnx.export(module, tuple(example), model, input_names=list(input_names),
+                          output_names=list(output_names), dynamic_axes=batch_axes,
+                          opset_version=opset_version, dynamo=False)
+    return model.getvalue()
+
+
 def export_onnx(network: nn.Module, example_inputs: Sequence[np.ndarray],
                 input_names: Sequence[str], output_names: Sequence[str],
                 dynamic_batch: bool = False) -> bytes:
     """
-    Export ``ImageInput(inference_network(network))`` to ONNX, in memory.
+    Export ``ImageInput(inference_network(network))`` to ONNX, in memory (``export_module``).
 
     Args:
         network: an eval-mode network whose forward has no data-dependent control flow (it
@@ -92,19 +123,9 @@ def export_onnx(network: nn.Module, example_inputs: Sequence[np.ndarray],
         The serialised ONNX model.
 
     """
-    prepared = ImageInput(inference_network(network))
-    example = tuple(torch.from_numpy(x) for x in example_inputs)
-    names = list(input_names) + list(output_names)
-    batch_axes = {name: {0: 'batch'} for name in names} if dynamic_batch else None
-    model = io.BytesIO()
-    with warnings.catch_warnings():
-        # The TorchScript-based exporter (dynamo=False): the newer torch.export one is far
-        # slower to export, too slow for a node's start.
-        warnings.simplefilter('ignore')
-        torch.onnx.export(prepared, example, model, input_names=list(input_names),
-                          output_names=list(output_names), dynamic_axes=batch_axes,
-                          dynamo=False)
-    return model.getvalue()
+    return export_module(ImageInput(inference_network(network)),
+                         [torch.from_numpy(x) for x in example_inputs], input_names,
+                         output_names, dynamic_batch)
 
 
 class OnnxRuntimeRunner:

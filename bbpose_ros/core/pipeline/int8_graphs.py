@@ -34,15 +34,14 @@ weights is refused. What it computes, by network kind (``INPUT_NAMES`` -> ``OUTP
 """
 
 import hashlib
-import io
 from pathlib import Path
-import warnings
 
 import torch
 from torch import nn
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.detector import DetectorConfig, peaks
+from bbpose_ros.core.pipeline.backends import export_module
 
 INT8_FORMAT = '1'
 INPUT_NAMES = {'detector': ('images',), 'qnet': ('crops', 'object_index')}
@@ -156,14 +155,9 @@ def with_peak_search(model, config: DetectorConfig, count: int) -> bytes:
     grid = (height // config.stride, width // config.stride)
     example = (torch.zeros((1, len(config.objects), *grid)), torch.zeros((1, 4, *grid)))
     opset = next(o.version for o in model.opset_import if o.domain in ('', 'ai.onnx'))
-    buffer = io.BytesIO()
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        torch.onnx.export(_PeakSearch(count), example, buffer,
-                          input_names=list(OUTPUT_NAMES['detector']),
-                          output_names=['scores', 'cells', 'sides'], opset_version=opset,
-                          dynamo=False)
-    search = onnx.load_from_string(buffer.getvalue())
+    search = onnx.load_from_string(export_module(
+        _PeakSearch(count), example, OUTPUT_NAMES['detector'], ('scores', 'cells', 'sides'),
+        opset_version=opset))
     search.ir_version = model.ir_version
     search = compose.add_prefix(search, 'peaks/')
     merged = compose.merge_models(model, search,
