@@ -78,6 +78,11 @@ def add_pipeline_arguments(parser):
                         help='how much the Bounding Box Equation misfit counts in choosing '
                              'among Q-Net hypotheses; 0: the best-scored one '
                              '(default %(default)s)')
+    parser.add_argument('--mask-consistency-weight', type=float,
+                        default=defaults.mask_consistency_weight,
+                        help="how much each Q-Net hypothesis' silhouette agreement (soft IoU) "
+                             "with the dense net's amodal mask counts in ranking them; 0: "
+                             'none (default %(default)s)')
     parser.add_argument('--refine', action=argparse.BooleanOptionalAction,
                         default=defaults.refine,
                         help='refine each pose by aligning the silhouette with the image '
@@ -120,6 +125,7 @@ def pipeline_options(args):
     """Return the PipelineOptions of ``add_pipeline_arguments``' options (InputError if bad)."""
     try:
         return PipelineOptions(box_consistency_weight=args.box_consistency_weight,
+                               mask_consistency_weight=args.mask_consistency_weight,
                                refine=args.refine, refine_min_score=args.refine_min_score,
                                refine_hypotheses=args.refine_hypotheses,
                                refine_prior_deg=args.refine_prior_deg,
@@ -213,6 +219,7 @@ def run(args):
                         'detector_weights': _weights_name(args.detector_weights),
                         'qnet_weights': _weights_name(args.qnet_weights),
                         'box_consistency_weight': args.box_consistency_weight,
+                        'mask_consistency_weight': args.mask_consistency_weight,
                         'refine': args.refine, 'refine_min_score': args.refine_min_score,
                         'refine_hypotheses': args.refine_hypotheses,
                         'refine_prior_deg': args.refine_prior_deg,

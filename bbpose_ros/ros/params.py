@@ -173,6 +173,10 @@ PARAMETERS = {
         'box_consistency_weight', 'With a multi-hypothesis Q-Net, how much the Bounding Box '
         'Equation misfit (largest side residual / longest box side) counts against the '
         'log-probability in choosing a rotation; 0: the best-scored one.'),
+    'mask_consistency_weight': option_spec(
+        'mask_consistency_weight', "With a multi-hypothesis Q-Net, how much each hypothesis' "
+        "silhouette agreement (soft IoU, 0..1) with the dense net's amodal mask counts in "
+        'ranking them; 0: none. Above 0 the dense net runs on every detection.'),
     'refine': option_spec(
         'refine', 'Refine each pose by aligning the mesh silhouette with the image '
         '(region-based, no learning); its score becomes the pose confidence.'),

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Choosing among a Q-Net's rotation hypotheses by how well each explains the 2D box.
+Choosing among a Q-Net's rotation hypotheses by how well each explains the 2D box and mask.
 
 The Bounding Box Equation has four equations (the box sides) for three unknowns (t). Under
 the right rotation one translation makes the object touch all four sides; under a wrong one
@@ -27,6 +27,11 @@ trusts a side residual of 5 % of the box as much as a factor e of probability. T
 weight was chosen on held-out synthetic crops, never on the real frames
 (docs/experiments.md). Scoring solves use a subsample of each object's hull points, which
 changes a residual by far less than the differences between hypotheses.
+
+Where the dense net predicts the detection's amodal mask, ``mask_weight`` adds
+``mask_weight * IoU_h``: the soft IoU of hypothesis h's silhouette (at the equation's
+translation) with that mask (``mask_agreement``), which tells apart rotations whose boxes
+look alike but whose shapes do not.
 """
 
 from __future__ import annotations
@@ -40,7 +45,9 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
+from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -75,24 +82,37 @@ class HypothesisSelector:
     Args:
         models: {name: ObjectModel}.
         weight: how much the box misfit counts against the network's log-probability;
-            0 keeps the network's best-scored hypothesis and solves nothing.
+            0 (with no mask term) keeps the network's best-scored hypothesis and solves
+            nothing.
         points_per_object: hull points kept for the scoring solves.
+        mask_weight: how much the silhouette's agreement with the predicted amodal mask
+            counts (0..1 IoU, times this); used when masks are given and ``agreement`` is
+            set.
+        agreement: the MaskAgreement that scores silhouettes against masks.
 
     Raises:
-        InputError: a negative or NaN weight; on a call, hypotheses that do not match the
-            detections.
+        InputError: a negative or NaN weight, a mask weight without an agreement; on a
+            call, hypotheses that do not match the detections.
 
     """
 
     def __init__(self, models: Mapping[str, ObjectModel],
                  weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT,
-                 points_per_object: int = SCORING_POINTS) -> None:
+                 points_per_object: int = SCORING_POINTS, mask_weight: float = 0.0,
+                 agreement: MaskAgreement | None = None) -> None:
         if not weight >= 0:      # also refuses NaN
             raise InputError(f'box_consistency_weight must be >= 0, got {weight}')
+        if not mask_weight >= 0:
+            raise InputError(f'mask_consistency_weight must be >= 0, got {mask_weight}')
+        if mask_weight > 0 and agreement is None:
+            raise InputError('mask_consistency_weight > 0 needs a MaskAgreement')
         self.weight = float(weight)
+        self.mask_weight = float(mask_weight)
+        self.agreement = agreement
         self._index = {name: k for k, name in enumerate(models)}
-        self._points = None if self.weight == 0.0 else pad_point_sets(
-            [farthest_points(m.hull_points, points_per_object) for m in models.values()])
+        self._points = None if self.weight == 0.0 and self.mask_weight == 0.0 else \
+            pad_point_sets([farthest_points(m.hull_points, points_per_object)
+                            for m in models.values()])
 
     def __call__(self, camera: CameraIntrinsics, detections: Sequence[Detection],
                  hypotheses: RotationHypotheses) -> np.ndarray:
@@ -100,15 +120,23 @@ class HypothesisSelector:
         return self.ranked(camera, detections, hypotheses, 1)[:, 0]
 
     def ranked(self, camera: CameraIntrinsics, detections: Sequence[Detection],
-               hypotheses: RotationHypotheses, count: int) -> np.ndarray:
-        """(N, K, 3, 3) the K = min(count, H) best rotations of each detection, best first."""
+               hypotheses: RotationHypotheses, count: int,
+               masks: ForegroundMasks | None = None) -> np.ndarray:
+        """
+        (N, K, 3, 3) the K = min(count, H) best rotations of each detection, best first.
+
+        ``masks``: the N detections' predicted amodal masks, or None (no mask term).
+        """
         rotations, log_probs = hypotheses.rotations, hypotheses.log_probs
         n, total = rotations.shape[:2]
         if log_probs.shape != (n, total) or n != len(detections):
             raise InputError(f'rotation hypotheses {rotations.shape[:2]} with log-probabilities '
                              f'{log_probs.shape} for {len(detections)} detections')
+        if masks is not None and len(masks.probabilities) != n:
+            raise InputError(f'{len(masks.probabilities)} masks for {n} detections')
+        with_masks = masks is not None and self.mask_weight > 0.0
         ranking = log_probs
-        if n > 0 and total > 1 and self.weight > 0.0:
+        if n > 0 and total > 1 and (self.weight > 0.0 or with_masks):
             boxes = np.repeat(np.stack([d.box_uv for d in detections]).astype(float), total,
                               axis=0)
             points = self._points[[self._index[d.object_name] for d in detections]]
@@ -117,5 +145,11 @@ class HypothesisSelector:
                                           camera.fx, camera.fy, camera.cx, camera.cy)
             misfit = box_misfit(solution.side_residuals_px, boxes).reshape(n, total)
             ranking = log_probs - self.weight * misfit
+            if with_masks:
+                each = np.repeat(np.arange(n), total)
+                agreement = self.agreement(camera, [detections[k].object_name for k in each],
+                                           rotations.reshape(-1, 3, 3), solution.translations,
+                                           masks.take(each))
+                ranking = ranking + self.mask_weight * agreement.reshape(n, total)
         order = np.argsort(-ranking, axis=1, kind='stable')[:, :max(1, min(count, total))]
         return rotations[np.arange(n)[:, None], order]

@@ -35,12 +35,14 @@ from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimato
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
 from bbpose_ros.core.pipeline.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
                                                   read_int8_graph)
+from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 from bbpose_ros.core.pipeline.weights import (DEFAULT_DENSE_WEIGHTS, DEFAULT_DETECTOR_WEIGHTS,
                                               DEFAULT_QNET_WEIGHTS, load_network)
+from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -77,7 +79,18 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     if threads is not None:
         torch.set_num_threads(threads)
     names = list(models)
-    selector = HypothesisSelector(models, options.box_consistency_weight)
+    refiner = None
+    if options.refine:
+        refiner = load_pose_refiner(models, options.refiner_config,
+                                    min_score=options.refine_min_score, progress=False,
+                                    log=refiner_log)
+    agreement = None
+    if options.ranks_by_mask:     # the silhouettes come from the refiner's viewpoint models
+        agreement = MaskAgreement(refiner.viewpoint_models if refiner is not None else
+                                  load_viewpoint_models(models, progress=False, log=refiner_log))
+    selector = HypothesisSelector(models, options.box_consistency_weight,
+                                  mask_weight=options.mask_consistency_weight,
+                                  agreement=agreement)
     detector_weights = detector_weights or DEFAULT_DETECTOR_WEIGHTS
     detector = BoxDetector(
         load_network(detector_weights, 'detector', names), names, options.score_threshold,
@@ -87,8 +100,9 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     if options.uses_qnet:
         qnet_weights = qnet_weights or DEFAULT_QNET_WEIGHTS
         qnet = load_network(qnet_weights, 'qnet', names)
-        # Every hypothesis is needed when they are ranked by the box or several are refined.
-        ranked = selector.weight > 0 or options.candidates_per_detection > 1
+        # Every hypothesis is needed when they are ranked by box or mask or several refined.
+        ranked = selector.weight > 0 or options.ranks_by_mask or \
+            options.candidates_per_detection > 1
         rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked,
                                          int8_graph=int8_graph(options, qnet_weights, 'qnet'))
@@ -96,11 +110,6 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     if options.runs_dense:
         correspondences = load_correspondences(models, options, dense_weights)
     detector.warm_up()
-    refiner = None
-    if options.refine:
-        refiner = load_pose_refiner(models, options.refiner_config,
-                                    min_score=options.refine_min_score, progress=False,
-                                    log=refiner_log)
     return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
                         refiner=refiner, candidates=options.candidates_per_detection,
                         correspondences=correspondences, dense_poses=options.uses_dense,

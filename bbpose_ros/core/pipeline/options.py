@@ -57,6 +57,10 @@ class PipelineOptions:
         box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
             Equation's misfit counts in choosing a rotation (``hypotheses``); 0: the
             network's best-scored one.
+        mask_consistency_weight: with a multi-hypothesis Q-Net, how much the agreement of
+            each hypothesis' silhouette with the dense net's amodal mask counts in ranking
+            them (soft IoU 0..1 times this, ``hypotheses``); 0: no mask term. Above 0 the
+            dense net runs on every detection.
         refine: add the region-based refinement stage (``refinement.PoseRefiner``).
         refine_hypotheses: with refinement, how many of each detection's best-ranked
             rotation hypotheses are solved and refined (the best-scored is kept); each costs
@@ -95,6 +99,7 @@ class PipelineOptions:
     score_threshold: float = _option(0.3, 0.0, 1.0)
     max_instances: int = _option(1, 1, 100)
     box_consistency_weight: float = _option(DEFAULT_BOX_CONSISTENCY_WEIGHT, 0.0, 1000.0)
+    mask_consistency_weight: float = _option(0.0, 0.0, 1000.0)
     refine: bool = _option(True)
     refine_hypotheses: int = _option(3, 1, 8)
     refine_min_score: float = _option(0.0, 0.0, 1.0)
@@ -133,7 +138,13 @@ class PipelineOptions:
     @property
     def runs_dense(self) -> bool:
         """Tell whether the dense net runs: for its PnP poses or its masks."""
-        return self.uses_dense or (self.refine and self.dense_mask != 'none')
+        return self.uses_dense or (self.refine and self.dense_mask != 'none') or \
+            self.ranks_by_mask
+
+    @property
+    def ranks_by_mask(self) -> bool:
+        """Tell whether Q-Net's hypotheses are ranked by the dense net's amodal masks too."""
+        return self.uses_qnet and self.mask_consistency_weight > 0.0
 
     @property
     def refiner_config(self) -> RefinerConfig:

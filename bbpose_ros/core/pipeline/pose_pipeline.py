@@ -155,8 +155,10 @@ class PosePipeline:
             if isinstance(rotations, RotationHypotheses):
                 if self.hypothesis_selector is None:
                     self.hypothesis_selector = HypothesisSelector(self.models)
-                rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
-                                                            self.candidates)
+                rotations = self.hypothesis_selector.ranked(
+                    camera, detections, rotations, self.candidates,
+                    None if dense is None else ForegroundMasks(dense[0].amodal,
+                                                               dense[0].squares_uv))
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
             solved = self.translations(camera, [d for d in detections for _ in range(count)],
