@@ -19,6 +19,8 @@ Speed of the pose pipeline stage by stage on real frames, and process readings (
 
 * ``image_conversion``: the message buffer -> (H, W, 3) RGB array;
 * ``detector``: the 2D detector on the whole frame;
+* ``correspondences``: the dense net on all objects' crops (one batch), when the pipeline
+  runs it (``PipelineOptions.runs_dense``);
 * ``qnet``: crop + Q-Net for all objects of the frame (one batch);
 * ``hypothesis_selection``: choosing among a multi-hypothesis Q-Net's rotations with the
   Bounding Box Equation (``hypotheses``; absent when the pipeline does not), and
@@ -60,7 +62,7 @@ if TYPE_CHECKING:
     from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
     from bbpose_ros.core.pipeline.poses import PoseEstimate
 
-STAGES = ('image_conversion', 'detector', 'qnet', 'hypothesis_selection', 'qnet_and_selection',
+STAGES = ('image_conversion', 'detector', 'correspondences', 'qnet', 'hypothesis_selection', 'qnet_and_selection',
           'bbox_equation', 'bbox_equation_per_object', 'refinement', 'refinement_per_object',
           'tracking', 'tracking_per_object', 'messages')
 MODES = ('detector', 'all_objects')
@@ -319,6 +321,8 @@ def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
              'messages': _ms(estimated, end), 'total': _ms(start, end),
              'objects': len(result.poses)}
     if result.poses:
+        if 'correspondences' in result.timings_ms:
+            times['correspondences'] = result.timings_ms['correspondences']
         times['qnet'] = result.timings_ms['rotation']
         if 'hypothesis_selection' in result.timings_ms:
             times['hypothesis_selection'] = result.timings_ms['hypothesis_selection']
