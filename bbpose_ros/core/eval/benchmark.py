@@ -63,9 +63,8 @@ if TYPE_CHECKING:
     from bbpose_ros.core.pipeline.poses import PoseEstimate
 
 STAGES = ('image_conversion', 'detector', 'correspondences', 'qnet', 'hypothesis_selection',
-          'qnet_and_selection',
-          'bbox_equation', 'bbox_equation_per_object', 'refinement', 'refinement_per_object',
-          'tracking', 'tracking_per_object', 'messages')
+          'qnet_and_selection', 'bbox_equation', 'bbox_equation_per_object', 'refinement',
+          'refinement_per_object', 'tracking', 'tracking_per_object', 'messages')
 MODES = ('detector', 'all_objects')
 
 # The speed budgets (ms, on 2 CPU cores): (mode, stage, statistic, limit). They leave the

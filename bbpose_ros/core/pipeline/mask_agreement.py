@@ -126,6 +126,8 @@ class MaskAgreement:
         uv = camera.project(np.where(in_front[:, None, None], points, 1.0))
         # Cell centres fall on integers: column i's centre is u0 + (i + 0.5) * cell.
         grid = (uv - squares_uv[:, None, :2]) / cell[:, None, None] - 0.5
+        # Clipped far outside the grid (cells there stay empty) to keep a point just in
+        # front of the camera within int32 at the subpixel scale.
         polygons = np.round(np.clip(grid, -4 * size, 5 * size) *
                             (1 << _SUBPIXEL_BITS)).astype(np.int32)
         canvas = np.zeros((len(points), size, size), np.uint8)

@@ -157,8 +157,7 @@ class PosePipeline:
                     self.hypothesis_selector = HypothesisSelector(self.models)
                 rotations = self.hypothesis_selector.ranked(
                     camera, detections, rotations, self.candidates,
-                    None if dense is None else ForegroundMasks(dense[0].amodal,
-                                                               dense[0].squares_uv))
+                    None if dense is None else dense_masks(dense[0], 'amodal'))
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
             solved = self.translations(camera, [d for d in detections for _ in range(count)],
@@ -177,10 +176,7 @@ class PosePipeline:
 
     def masks_of(self, maps: DenseMaps) -> ForegroundMasks | None:
         """Return the refiner's masks of a frame's DenseMaps (``dense_mask``), or None."""
-        if self.dense_mask == 'none':
-            return None
-        return ForegroundMasks(maps.amodal if self.dense_mask == 'amodal' else maps.visible,
-                               maps.squares_uv)
+        return None if self.dense_mask == 'none' else dense_masks(maps, self.dense_mask)
 
     def _dense_candidates(self, camera, detections, dense_poses):
         """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""
@@ -209,3 +205,8 @@ class PosePipeline:
                                       max_iterations=self.max_iterations)
         return [PoseEstimate(d, r, t, source=source)
                 for d, r, t in zip(detections, rotations, solution.translations)]
+
+
+def dense_masks(maps: DenseMaps, kind: str) -> ForegroundMasks:
+    """Return a frame's DenseMaps' 'amodal' or 'visible' masks over their squares."""
+    return ForegroundMasks(maps.amodal if kind == 'amodal' else maps.visible, maps.squares_uv)
