@@ -22,13 +22,18 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.dense_grid import model_box
+from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render.reference import render_depth
 from bbpose_ros.core.synth.effects import color_response
 from bbpose_ros.core.synth.stable_poses import compute_stable_poses, resting_height
 from bbpose_ros.core.synth.table_config import TableConfig
+from bbpose_ros.core.synth.table_crops import TableCrops
 from bbpose_ros.core.synth.table_scenes import polygons_overlap, TableScenes
+from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 TARGETS = ('ape', 'duck', 'glue')
@@ -128,6 +133,45 @@ def test_samples_are_deterministic(table, rendered):
     first, _ = rendered[1]
     np.testing.assert_array_equal(again.image_rgb, first.image_rgb)
     assert [i.object_name for i in again.instances] == [i.object_name for i in first.instances]
+
+
+def test_table_crops_carry_the_scenes_ground_truth_and_exact_dense_targets(
+        lmo_models, rendered, tmp_path):
+    source = TableCrops({name: lmo_models[name] for name in TARGETS}, CAMERA, 5, CONFIG,
+                        {'can': lmo_models['can']}, crop_size=96, dense_size=16)
+    count = 0
+    for index in range(2):
+        crops = source.crops(index)
+        count += len(crops)
+        sample, _ = rendered[index]
+        instances = {i.object_name: i for i in sample.instances if i.visib_fract >= 0.15}
+        assert sorted(c.object_name for c in crops) == sorted(instances)
+        for crop in crops:
+            instance = instances[crop.object_name]
+            np.testing.assert_array_equal(crop.rotation, instance.rotation)
+            assert crop.image_rgb.shape == (96, 96, 3) and crop.coordinates.shape == (16, 16, 3)
+            assert np.all(crop.visible_mask <= crop.amodal_mask + 1e-6)
+            # The unlit coordinate pass sees what the lit frame showed: the visible share
+            # of the crop's cells adds up to the instance's visible pixels.
+            cell_area = ((crop.square_uv[2] - crop.square_uv[0]) / 16) ** 2
+            visible_px = crop.visible_mask.sum() * cell_area
+            assert abs(visible_px - instance.mask.sum()) < 0.1 * instance.mask.sum() + 40
+            full = crop.visible_mask > 0.99
+            if full.sum() < 8:
+                continue
+            model = lmo_models[crop.object_name]
+            pose = pose_from_dense_maps(crop.coordinates, full.astype(float), crop.square_uv,
+                                        CAMERA, *model_box(model.vertices))
+            re_deg, te_m = cm_deg_errors(pose.rotation, pose.translation, crop.rotation,
+                                         crop.translation, model.symmetry_transforms)
+            assert re_deg < 1.0 and te_m < 0.003, (crop.object_name, re_deg, te_m)
+    # A cache of table crops: shards of scenes, each holding their crops.
+    build_crop_cache(source, tmp_path / 'table', 2, workers=1, progress=False, shard_size=1)
+    source.close()
+    cache = CropCache(tmp_path / 'table')
+    assert cache.shards == 2 and cache.dense_size == 16
+    assert len(cache.visib) == count
+    assert '"scene_style": "table"' in (tmp_path / 'table' / 'meta.json').read_text()
 
 
 def test_stable_poses_stand_on_a_face_over_the_centre_of_mass(lmo_models):

@@ -300,6 +300,16 @@ def test_train_cli_without_a_cache_is_a_clear_error(tmp_path, lmo_root, capsys):
     assert 'no training cache' in capsys.readouterr().err
 
 
+def test_render_crops_cli_counts_scenes_only_for_table_crops(tmp_path, lmo_root, capsys):
+    common = ['train', 'render-crops', '--dataset', str(lmo_root), '--cache',
+              str(tmp_path / 'crops')]
+    assert main(common + ['--scene-style', 'table']) == 2
+    assert '--scene-style table needs --scenes' in capsys.readouterr().err
+    assert main(common + ['--scenes', '10']) == 2
+    assert '--scenes is for --scene-style table' in capsys.readouterr().err
+    assert not (tmp_path / 'crops').exists()
+
+
 def test_train_detector_cli_joins_scene_caches_only(tmp_path, lmo_root, capsys):
     _write_cache(tmp_path / 'scenes', _fake_cache(np.random.default_rng(6)))
     (tmp_path / 'crops').mkdir()

@@ -81,7 +81,15 @@ def add_parser(subparsers):
 
     crops = sub.add_parser('render-crops', help='render a Q-Net crop cache')
     _common(crops)
-    crops.add_argument('--crops', type=int, default=80000, help='crops to render')
+    crops.add_argument('--crops', type=int, default=80000,
+                       help="crops to render ('random' style)")
+    crops.add_argument('--scene-style', choices=SCENE_STYLES, default='random',
+                       help="'random': each crop rendered alone around a floating object; "
+                            "'table': whole table-top scenes (as 'bbpose train render "
+                            "--scene-style table'), a crop cut around every target at least "
+                            '15 %% visible (default %(default)s)')
+    crops.add_argument('--scenes', type=int, default=None,
+                       help="table scenes to render ('table' style; each gives about 5 crops)")
     crops.add_argument('--workers', type=int, default=2, help='rendering processes')
     crops.add_argument('--dense-size', type=int, default=0, metavar='M',
                        help="also store the dense head's targets (model coordinates, visible "
@@ -225,6 +233,13 @@ def _init(args, kind, objects):
     return load_network(args.init, kind, list(objects))
 
 
+def _other_models(args, models):
+    """{name: ObjectModel} the dataset's meshes that are not targets: table-top clutter."""
+    from bbpose_ros.core.data.models import load_bop_models
+    return {name: model for name, model in load_bop_models(args.dataset).items()
+            if name not in models}
+
+
 def _photos(args):
     from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
     return None if not args.backgrounds else PhotoBackgrounds.from_folders(args.backgrounds)
@@ -305,6 +320,8 @@ def _dense_options(parser):
     parser.add_argument('--trunk-lr-scale', type=float, default=None,
                         help="the trunk's learning rate / the decoder's (0 freezes it; "
                              'default 0.1)')
+    _init_option(parser)
+    _augment_option(parser)
     parser.add_argument('--real-val', action='store_true',
                         help="also score the real frames of --dataset's test split at every "
                              'checkpoint (ground-truth boxes, PnP poses, mask IoU); they are '
@@ -409,11 +426,10 @@ def run_render(args):
     if args.scene_style == 'table':
         from bbpose_ros.core.synth.table_config import TableConfig
         from bbpose_ros.core.synth.table_scenes import TableScenes
-        others = {name: model for name, model in load_bop_models(args.dataset).items()
-                  if name not in models}
         scenes = TableScenes(models, camera, seed=args.seed,
                              config=with_inplane_range(TableConfig(), args),
-                             distractor_models=others, backgrounds=_photos(args))
+                             distractor_models=_other_models(args, models),
+                             backgrounds=_photos(args))
     else:
         scenes = SyntheticScenes(models, camera, seed=args.seed,
                                  config=with_inplane_range(SynthConfig(), args),
@@ -425,15 +441,33 @@ def run_render(args):
 def run_render_crops(args):
     """Render the Q-Net crop cache."""
     from bbpose_ros.core.data.models import load_bop_models
-    from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
     from bbpose_ros.core.training.crop_cache import build_crop_cache
     camera = _cache_camera(args.dataset)
-    scenes = CropScenes(load_bop_models(args.dataset, args.objects), camera, seed=args.seed,
-                        config=with_inplane_range(CROP_SYNTH_CONFIG, args),
-                        crop_size=args.crop_size, context=args.context,
-                        box_sigma=args.box_sigma, backgrounds=_photos(args),
-                        dense_size=args.dense_size)
-    build_crop_cache(scenes, args.cache, args.crops, workers=args.workers)
+    models = load_bop_models(args.dataset, args.objects)
+    if args.scene_style == 'table':
+        from bbpose_ros.core.synth.table_config import TableConfig
+        from bbpose_ros.core.synth.table_crops import TableCrops
+        if args.scenes is None or args.scenes < 1:
+            raise InputError('--scene-style table needs --scenes N (N >= 1): the table scenes '
+                             'to render')
+        scenes = TableCrops(models, camera, seed=args.seed,
+                            config=with_inplane_range(TableConfig(), args),
+                            distractor_models=_other_models(args, models),
+                            backgrounds=_photos(args), crop_size=args.crop_size,
+                            context=args.context, box_sigma=args.box_sigma,
+                            dense_size=args.dense_size)
+        count = args.scenes
+    else:
+        from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
+        if args.scenes is not None:
+            raise InputError("--scenes is for --scene-style table; 'random' counts --crops")
+        scenes = CropScenes(models, camera, seed=args.seed,
+                            config=with_inplane_range(CROP_SYNTH_CONFIG, args),
+                            crop_size=args.crop_size, context=args.context,
+                            box_sigma=args.box_sigma, backgrounds=_photos(args),
+                            dense_size=args.dense_size)
+        count = args.crops
+    build_crop_cache(scenes, args.cache, count, workers=args.workers)
     return 0
 
 
@@ -589,7 +623,7 @@ def run_dense(args):
                               load_bop_models(args.dataset))
     train_dense(cache, models, config, settings, args.run_dir, args.steps, _seconds(args),
                 args.seed, args.threads, args.export, args.every, real_crops=real,
-                device=device)
+                device=device, init=_init(args, 'dense', models))
     return 0
 
 

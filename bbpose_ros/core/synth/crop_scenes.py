@@ -61,6 +61,29 @@ _MIN_DISTANCE = 0.25
 CROP_SYNTH_CONFIG = SynthConfig(frame_margin=-0.08)
 
 
+def checked_dense_size(dense_size: int, crop_size: int) -> int:
+    """Return ``dense_size`` as an int, checked: 0, or a divisor of the render size."""
+    size = int(dense_size)
+    if size < 0 or (size and 2 * int(crop_size) % size):
+        raise InputError(f'dense_size {dense_size} must divide the render size '
+                         f'{2 * int(crop_size)} (twice the crop size)')
+    return size
+
+
+def in_frame_mask(camera: CameraIntrinsics, square_uv: np.ndarray, size: int) -> np.ndarray:
+    """
+    (size, size) bool: the pixels of a render of ``square_uv`` whose centres lie in the frame.
+
+    ``square_uv`` (4,) is a region of ``camera``'s full frame (continuous pixels) rendered at
+    size x size pixels; parts of it beyond the frame's edges are what the camera never saw.
+    """
+    cols = square_uv[0] + (np.arange(size) + 0.5) * (square_uv[2] - square_uv[0]) / size
+    rows = square_uv[1] + (np.arange(size) + 0.5) * (square_uv[3] - square_uv[1]) / size
+    inside_u = (cols >= -0.5) & (cols <= camera.width - 0.5)
+    inside_v = (rows >= -0.5) & (rows <= camera.height - 0.5)
+    return inside_v[:, None] & inside_u[None, :]
+
+
 @dataclass(frozen=True)
 class CropSample:
     """
@@ -133,10 +156,7 @@ class CropScenes:
         self.crop_size, self.context, self.box_sigma = int(crop_size), context, box_sigma
         self.min_visib, self.neighbours = min_visib, neighbours
         self.backgrounds = backgrounds
-        self.dense_size = int(dense_size)
-        if self.dense_size < 0 or (self.dense_size and 2 * self.crop_size % self.dense_size):
-            raise InputError(f'dense_size {dense_size} must divide the render size '
-                             f'{2 * self.crop_size} (twice the crop size)')
+        self.dense_size = checked_dense_size(dense_size, self.crop_size)
         self.model_boxes = {name: model_box(model.vertices) for name, model in models.items()}
         meshes = {f'target/{name}': RenderMesh.from_object_model(model)
                   for name, model in models.items()}
@@ -171,6 +191,10 @@ class CropScenes:
         raise RuntimeError(f'no crop of {name} with visib_fract >= {self.min_visib} in '
                            f'{_ATTEMPTS} attempts (sample {index})')
 
+    def crops(self, index: int) -> list[CropSample]:
+        """Render crop number ``index`` as a one-crop list (the crop caches' interface)."""
+        return [self.sample(index)]
+
     def _attempt(self, rng, name):
         config, camera = self.config, self.camera
         key = f'target/{name}'
@@ -193,7 +217,7 @@ class CropScenes:
                             rng.uniform(*config.diffuse_range))
         rendered = self.renderer.render(draws, lighting, (0,), crop_camera,
                                         coordinates=self.dense_size > 0)
-        in_frame = self._in_frame_mask(square)
+        in_frame = in_frame_mask(camera, square, self.render_size)
         visible_mask = (rendered.instance_ids == 1) & in_frame
         visible = np.count_nonzero(visible_mask)
         visib = min(visible / max(rendered.full_pixel_counts[0], 1), 1.0)
@@ -240,15 +264,6 @@ class CropScenes:
                 draws.append(Draw(other, rotation, translation,
                                   tuple(rng.uniform(*config.color_gain_range, 3))))
         return draws
-
-    def _in_frame_mask(self, square):
-        """(R, R) bool: render pixels whose centres fall inside the full frame."""
-        size, camera = self.render_size, self.camera
-        centres = square[0] + (np.arange(size) + 0.5) * (square[2] - square[0]) / size
-        rows = square[1] + (np.arange(size) + 0.5) * (square[3] - square[1]) / size
-        inside_u = (centres >= -0.5) & (centres <= camera.width - 0.5)
-        inside_v = (rows >= -0.5) & (rows <= camera.height - 0.5)
-        return inside_v[:, None] & inside_u[None, :]
 
     def _background(self, rng, side):
         """(R, R, 3) uint8 background of a crop of ``side`` full-frame pixels."""

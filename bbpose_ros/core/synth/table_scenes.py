@@ -90,11 +90,14 @@ class TableLayout:
     Attributes:
         meshes: tuple of ``PlacedMesh``, the targets first.
         world_to_camera: (4, 4) rigid map of world points to the camera frame (metres).
+        draws: tuple of the ``Draw`` (camera frame) the image was rendered with, one per
+            mesh, in the same order.
 
     """
 
     meshes: tuple[PlacedMesh, ...]
     world_to_camera: np.ndarray
+    draws: tuple[Draw, ...]
 
 
 def look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
@@ -223,7 +226,7 @@ class TableScenes:
         image = apply_camera_effects(rng, image, config.effects)
         instances = visible_instances(rendered, draws, targets, self.camera, self.hulls)
         return (SyntheticSample(image, self.camera, instances),
-                TableLayout(tuple(kept), world_to_camera))
+                TableLayout(tuple(kept), world_to_camera, tuple(draws)))
 
     def _layout(self, rng, radius):
         """

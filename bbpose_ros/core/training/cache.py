@@ -52,6 +52,7 @@ from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropScenes
     from bbpose_ros.core.synth.scenes import SyntheticScenes
+    from bbpose_ros.core.synth.table_crops import TableCrops
     from bbpose_ros.core.synth.table_scenes import TableScenes
 
 SHARD_SIZE = 250
@@ -196,7 +197,7 @@ def camera_meta(camera: CameraIntrinsics) -> list[float]:
     return [camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]
 
 
-def photo_count(scenes: SyntheticScenes | CropScenes) -> int:
+def photo_count(scenes: SyntheticScenes | TableScenes | CropScenes | TableCrops) -> int:
     """Count the background photographs of a scene source (0: procedural only)."""
     return 0 if scenes.backgrounds is None else len(scenes.backgrounds.paths)
 

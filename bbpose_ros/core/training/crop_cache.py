@@ -13,13 +13,15 @@
 # limitations under the License.
 
 """
-A rendered set of Q-Net crops on disk (``CropScenes`` samples), in resumable shards.
+A rendered set of Q-Net crops on disk (``CropScenes``, ``TableCrops``), in resumable shards.
 
 A shard ``shard_NNNNN.npz`` holds, per crop: ``crop`` (n, S, S, 3) uint8, ``object`` (n,)
 index into the cache's objects, ``box_uv`` (n, 4) amodal box and ``input_box_uv`` (n, 4)
 jittered box the crop is centred on (full-frame continuous pixels), ``visib`` (n,),
 ``rotation`` (n, 3, 3) egocentric model-to-camera, ``translation`` (n, 3) metres.
-``meta.json`` records objects, camera, seed, crop size, context and box jitter.
+``meta.json`` records objects, camera, seed, crop size, context and box jitter. A cache of
+``TableCrops`` (``meta.json`` ``scene_style`` 'table') holds per shard the crops of
+``shard_size`` table scenes, one per target visible enough.
 
 Format version 2 (``meta.json`` ``format_version`` 2, ``dense_size`` M) adds the dense
 head's targets (``core.synth.dense_targets``) on an M x M grid over each crop:
@@ -47,8 +49,11 @@ from bbpose_ros.core.training.cache import camera_meta, photo_count, render_shar
 
 if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropSample, CropScenes
+    from bbpose_ros.core.synth.table_crops import TableCrops
 
 SHARD_SIZE = 2000
+# Table scenes per shard of a TableCrops cache (each gives several crops).
+TABLE_SHARD_SCENES = 250
 # The cache format with dense targets; caches without them keep version 1's meta.json.
 DENSE_FORMAT_VERSION = 2
 
@@ -60,7 +65,11 @@ def _init_worker(scenes):
 
 
 def _render(index):
-    return _WORKER['scenes'].sample(index)
+    return _WORKER['scenes'].crops(index)
+
+
+def _write_crops(names, path, results):
+    write_crop_shard(names, path, [crop for crops in results for crop in crops])
 
 
 def write_crop_shard(names: Sequence[str], path: Path,
@@ -84,20 +93,27 @@ def write_crop_shard(names: Sequence[str], path: Path,
         np.savez(stream, **arrays)
 
 
-def build_crop_cache(scenes: CropScenes, cache_dir: Path | str, count: int, workers: int = 2,
-                     progress: bool = True, shard_size: int = SHARD_SIZE) -> None:
+def build_crop_cache(scenes: CropScenes | TableCrops, cache_dir: Path | str, count: int,
+                     workers: int = 2, progress: bool = True,
+                     shard_size: int | None = None) -> None:
     """
-    Render ``count`` crops of a CropScenes into ``cache_dir`` (resumable, whole shards).
+    Render ``count`` samples of a crop source into ``cache_dir`` (resumable, whole shards).
 
     Args:
-        scenes: CropScenes (targets = the cache's objects).
+        scenes: CropScenes (a sample is one crop) or TableCrops (a sample is one table
+            scene and gives a crop per visible target); its targets are the cache's objects.
         cache_dir: output folder (created).
-        count: number of crops; rounded up to whole shards of ``shard_size``.
+        count: number of samples; rounded up to whole shards of ``shard_size``.
         workers: rendering processes (each makes its own GL context).
         progress: show a tqdm bar.
-        shard_size: crops per shard file.
+        shard_size: samples per shard file (default ``SHARD_SIZE`` crops or
+            ``TABLE_SHARD_SCENES`` table scenes).
 
     """
+    from bbpose_ros.core.synth.table_crops import TableCrops
+    table = isinstance(scenes, TableCrops)
+    if shard_size is None:
+        shard_size = TABLE_SHARD_SCENES if table else SHARD_SIZE
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
     meta = {'kind': 'qnet_crops', 'objects': scenes.target_names, 'seed': scenes.seed,
@@ -107,11 +123,13 @@ def build_crop_cache(scenes: CropScenes, cache_dir: Path | str, count: int, work
             'shard_size': shard_size,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
+    if table:     # caches of the other style keep their meta
+        meta['scene_style'] = 'table'
     if scenes.dense_size:
         meta.update(format_version=DENSE_FORMAT_VERSION, dense_size=scenes.dense_size)
     render_shards(cache_dir, meta, whole_shards(count, shard_size), shard_size, _init_worker,
-                  (scenes,), _render,
-                  partial(write_crop_shard, scenes.target_names), 'crop', workers, progress)
+                  (scenes,), _render, partial(_write_crops, scenes.target_names),
+                  'scene' if table else 'crop', workers, progress)
 
 
 def _read_meta(cache_dir):

@@ -16,10 +16,10 @@
 Dense net training on a crop cache with dense targets (format version 2).
 
 Each step draws ``batch`` crops (visible fraction >= ``min_visib``), resizes them to the
-network's input, applies photometric augmentation and fits the maps: L1 on the normalised
-coordinates over the cells the target covers (visible share >= 0.5), and binary
-cross-entropy on the visible and amodal masks (soft targets: each cell's covered share),
-summed with ``coordinate_weight`` on the L1.
+network's input, applies photometric augmentation (``augment_batch``) and fits the maps:
+L1 on the normalised coordinates over the cells the target covers (visible share >= 0.5),
+and binary cross-entropy on the visible and amodal masks (soft targets: each cell's
+covered share), summed with ``coordinate_weight`` on the L1.
 
 Symmetric objects get unambiguous targets: of the poses a symmetry makes equivalent
 (``models_info.json``'s ``symmetries_discrete``), the one whose allocentric rotation is
@@ -48,7 +48,7 @@ from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.images import images_to_input
-from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.device import TrainingDevice
 
 if TYPE_CHECKING:
@@ -69,6 +69,7 @@ class DenseTrainSettings:
     min_visib: float = 0.15
     val_fraction: float = 0.05
     augment: float = 1.0
+    augment_style: str = 'basic'
     trunk_lr_scale: float = 0.1
     coordinate_weight: float = 1.0
     frozen_blocks: int = 5
@@ -195,8 +196,7 @@ class DenseBatches:
         config = self.config
         crops, _ = self.cache.input_crops(ids, None, None, config.crop_size, config.context)
         images = images_to_input(torch.from_numpy(crops))
-        if augment > 0:
-            images = photometric(images, self.generator, augment)
+        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
         coordinates, visible, amodal = self.targets(ids)
         return (images.contiguous(memory_format=torch.channels_last),
                 torch.from_numpy(self.net_index[ids]),

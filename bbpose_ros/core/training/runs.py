@@ -154,20 +154,22 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
                 seconds: float | None = None, seed: int = 0, threads: int | None = None,
                 export: Path | str | None = None, every: int = 500, progress: bool = True,
                 real_crops: RealDenseCrops | None = None,
-                device: str | torch.device = 'cpu') -> DenseNet:
+                device: str | torch.device = 'cpu', init: DenseNet | None = None) -> DenseNet:
     """
     Train (or resume) a dense net on a CropCache with dense targets; returns the network.
 
     As ``train_qnet``: the weight file is ``run_dir/dense.pt`` (and ``export``);
-    ``real_crops`` (a ``RealDenseCrops``) adds real-frame figures to every validation.
+    ``real_crops`` (a ``RealDenseCrops``) adds real-frame figures to every validation;
+    ``init`` is a trained dense net of the same config to start from (``start_weights``).
     """
     device = _prepare(run_dir, seed, threads, device)
     network = DenseNet(config)
     freeze_early_blocks(network, settings.frozen_blocks)
-    network, optimizer = _start_network(network, settings, device)
+    network, optimizer = _start_network(network, settings, device, init)
     batches = DenseBatches(cache, config, models, settings, seed)
     validation = {}
-    training = _crop_run_record(cache, settings, steps, seed, device)
+    training = dict(_crop_run_record(cache, settings, steps, seed, device),
+                    init=_init_command(init))
 
     def figures():
         values = dense_validation(network, batches, device)
