@@ -168,4 +168,24 @@ weights: setup photos
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
 		--run-dir $(CACHE)/runs/dense_lite0 --crop-size 64 --steps 6000 --every 750 \
 		--batch 32 --lr 2e-3 --threads 1 --seed 7 --real-val \
-		--export bbpose_ros/weights/dense.pt
+		--export $(CACHE)/runs/dense_lite0.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
+		--scene-style table --seed 26 --scenes 2000 --crop-size 96 --dense-size 32 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense27 \
+		--scene-style table --seed 27 --scenes 2000 --crop-size 96 --dense-size 32 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
+		--run-dir $(CACHE)/runs/dense_table_ft --init $(CACHE)/runs/dense_lite0.pt \
+		--augment strong --crop-size 64 --steps 3000 --every 500 --batch 32 --lr 1e-3 \
+		--threads 2 --seed 8 --real-val --export $(CACHE)/runs/dense_table26.pt
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
+		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table2_ft \
+		--init $(CACHE)/runs/dense_table26.pt --augment strong --crop-size 64 \
+		--frozen-blocks 0 --coordinate-weight 3 --steps 4000 --every 1000 --batch 32 \
+		--lr 1e-3 --threads 2 --seed 9 --real-val --export $(CACHE)/runs/dense_table27.pt
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
+		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table3_ft \
+		--init $(CACHE)/runs/dense_table27.pt --augment strong --crop-size 64 \
+		--frozen-blocks 0 --coordinate-weight 3 --steps 4000 --every 1000 --batch 32 \
+		--lr 1e-3 --threads 2 --seed 10 --real-val --export bbpose_ros/weights/dense.pt
