@@ -188,4 +188,9 @@ weights: setup photos
 		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table3_ft \
 		--init $(CACHE)/runs/dense_table27.pt --augment strong --crop-size 64 \
 		--frozen-blocks 0 --coordinate-weight 3 --steps 4000 --every 1000 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 10 --real-val --export bbpose_ros/weights/dense.pt
+		--lr 1e-3 --threads 2 --seed 10 --real-val --export $(CACHE)/runs/dense_table27b.pt
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
+		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table4_ft \
+		--init $(CACHE)/runs/dense_table27b.pt --augment strong --crop-size 64 \
+		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
+		--lr 1e-3 --threads 2 --seed 11 --real-val --export bbpose_ros/weights/dense.pt
