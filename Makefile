@@ -193,4 +193,15 @@ weights: setup photos
 		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table4_ft \
 		--init $(CACHE)/runs/dense_table27b.pt --augment strong --crop-size 64 \
 		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 11 --real-val --export bbpose_ros/weights/dense.pt
+		--lr 1e-3 --threads 2 --seed 11 --real-val --export $(CACHE)/runs/dense_table27c.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--scene-style table --seed 28 --scenes 2000 --crop-size 96 --dense-size 32 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense29 \
+		--scene-style table --seed 29 --scenes 2000 --crop-size 96 --dense-size 32 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(CACHE)/crops96_table_dense29 --run-dir $(CACHE)/runs/dense_table5_ft \
+		--init $(CACHE)/runs/dense_table27c.pt --augment strong --crop-size 64 \
+		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
+		--lr 1e-3 --threads 2 --seed 12 --real-val --export bbpose_ros/weights/dense.pt
