@@ -108,7 +108,7 @@ class PipelineOptions:
     refine_threads: int = _option(0, 0, 256)
     refine_occlusions: bool = _option(True)
     pose_source: str = _option('qnet', choices=POSE_SOURCES)
-    dense_translation: str = _option('pnp', choices=DENSE_TRANSLATIONS)
+    dense_translation: str = _option('both', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)
     backend: str = _option('onnxruntime', choices=BACKENDS)
     precision: str = _option('auto', choices=PRECISIONS)
