@@ -204,4 +204,13 @@ weights: setup photos
 		--extra-cache $(CACHE)/crops96_table_dense29 --run-dir $(CACHE)/runs/dense_table5_ft \
 		--init $(CACHE)/runs/dense_table27c.pt --augment strong --crop-size 64 \
 		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 12 --real-val --export bbpose_ros/weights/dense.pt
+		--lr 1e-3 --threads 2 --seed 12 --real-val --export $(CACHE)/runs/dense_table29e.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense30 \
+		--scene-style table --seed 30 --scenes 2000 --crop-size 96 --dense-size 32 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
+		--run-dir $(CACHE)/runs/dense_table6_ft --init $(CACHE)/runs/dense_table29e.pt \
+		--augment strong --crop-size 64 --frozen-blocks 0 --coordinate-weight 3 --steps 6000 \
+		--every 1500 --batch 32 --lr 1e-3 --threads 2 --seed 13 --real-val \
+		--export bbpose_ros/weights/dense.pt
