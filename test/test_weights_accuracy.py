@@ -77,7 +77,7 @@ def test_the_shipped_dense_net_gives_candidates_and_masks(lmo_models, lmo_frames
     frame = lmo_frames[0]
     result = pipeline.estimate(frame.load_image(), frame.camera)
     assert result.poses and 'correspondences' in result.timings_ms
-    assert {p.source for p in result.poses} <= {'pnp', 'qnet'}
+    assert {p.source for p in result.poses} <= {'pnp', 'pnp_rotation', 'qnet'}
     maps = pipeline.correspondences.maps(frame.load_image(), [p.detection for p in result.poses])
     # The predicted masks cover part of each crop, not all or nothing.
     assert 0.02 < float(maps.amodal.mean()) < 0.9
