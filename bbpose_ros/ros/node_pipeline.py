@@ -73,8 +73,9 @@ def build_node_pipeline(config: NodeConfig,
                          f'the shipped files): {err}') from err
     if log is not None:
         qnet = getattr(pipeline.rotation_estimator, 'precision', 'not used')
-        log(f'networks: detector {pipeline.detector.precision}, Q-Net {qnet} '
-            f'(inference_precision {config.options.precision})')
+        dense = getattr(pipeline.correspondences, 'precision', 'not used')
+        log(f'networks: detector {pipeline.detector.precision}, Q-Net {qnet}, dense net '
+            f'{dense} (inference_precision {config.options.precision})')
     tracking = config.tracking_config()
     if tracking is not None:
         pipeline = PoseTracker(pipeline, tracking)

@@ -65,7 +65,13 @@ class DenseCorrespondenceEstimator:
         models: {name: ObjectModel} of its objects (for the model boxes).
         backend, device, threads: see ``backends.make_runner``.
 
+    Attributes:
+        precision: 'fp32': the dense net always runs in float (its int8 graph cost accuracy:
+            one uint8 scale cannot cover both coordinates and mask logits).
+
     """
+
+    precision = 'fp32'
 
     def __init__(self, network: DenseNet, models: Mapping[str, ObjectModel],
                  backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
