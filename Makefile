@@ -112,6 +112,10 @@ TABLE_DENSE_CROPS = --scene-style table --scenes 2000 --crop-size 96 --dense-siz
 	--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 DENSE_TABLE_FT = --augment strong --crop-size 64 --frozen-blocks 0 --coordinate-weight 3 \
 	--batch 32 --lr 1e-3 --threads 2 --real-val
+# Q-Net's later table-top stages train on the same crop caches.
+QNET_TABLE_FT = --augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --channels 64 \
+	--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
+	--threads 1 --real-val
 
 # Reproduce the shipped weights (over an hour on 2 CPU cores; every stage resumes if
 # interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
@@ -166,9 +170,7 @@ weights: setup photos
 		--augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --channels 64 \
 		--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
 		--steps 1500 --every 500 --threads 1 --seed 7 --real-val \
-		--export bbpose_ros/weights/qnet.pt
-	$(BIN)/bbpose train quantize --network qnet --weights bbpose_ros/weights/qnet.pt \
-		--cache $(CACHE)/scenes_table_23
+		--export $(CACHE)/runs/qnet_table21.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --cache $(CACHE)/crops96_dense3 \
 		--seed 3 --crops 24000 --crop-size 96 --dense-size 32 --backgrounds $(PHOTOS) \
 		--inplane-range-deg=-60,60
@@ -214,4 +216,26 @@ weights: setup photos
 		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
 		--run-dir $(CACHE)/runs/dense_table6_ft --init $(CACHE)/runs/dense_table29e.pt \
 		--steps 6000 --every 1500 --seed 13 $(DENSE_TABLE_FT) \
+		--export $(CACHE)/runs/dense_table30f.pt
+	for seed in 32 33 34 35; do $(BIN)/bbpose train render-crops --dataset $(DATASET) \
+		--seed $$seed --cache $(CACHE)/crops96_table_dense$$seed $(TABLE_DENSE_CROPS) || exit 1; done
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
+		$(CACHE)/crops96_table_dense32 $(CACHE)/crops96_table_dense33 \
+		--run-dir $(CACHE)/runs/qnet_table3_ft --init $(CACHE)/runs/qnet_table21.pt \
+		--steps 2000 --every 500 --seed 8 $(QNET_TABLE_FT) --export $(CACHE)/runs/qnet_table33.pt
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense34 \
+		--extra-cache $(CACHE)/crops96_table_dense35 $(CACHE)/crops96_table_dense28 \
+		$(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
+		$(CACHE)/crops96_table_dense32 $(CACHE)/crops96_table_dense33 \
+		--run-dir $(CACHE)/runs/qnet_table4_ft --init $(CACHE)/runs/qnet_table33.pt \
+		--steps 2000 --every 500 --seed 9 $(QNET_TABLE_FT) --export bbpose_ros/weights/qnet.pt
+	$(BIN)/bbpose train quantize --network qnet --weights bbpose_ros/weights/qnet.pt \
+		--cache $(CACHE)/scenes_table_23
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
+		$(CACHE)/crops96_table_dense32 $(CACHE)/crops96_table_dense33 \
+		$(CACHE)/crops96_table_dense34 $(CACHE)/crops96_table_dense35 \
+		--run-dir $(CACHE)/runs/dense_table7_ft --init $(CACHE)/runs/dense_table30f.pt \
+		--steps 8000 --every 2000 --seed 14 $(DENSE_TABLE_FT) \
 		--export bbpose_ros/weights/dense.pt
