@@ -32,7 +32,7 @@ from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.pipeline.backends import make_runner
 from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.poses import Detection
-from bbpose_ros.core.pipeline.weights import load_network, save_weights
+from bbpose_ros.core.pipeline.weights import DEFAULT_DENSE_WEIGHTS, load_network, save_weights
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.crop_scenes import CropScenes
 from bbpose_ros.core.synth.dense_targets import dense_targets
@@ -192,6 +192,14 @@ def test_dense_cache_feeds_batches_and_a_version_1_cache_is_refused(
     images, index, coordinates, visible, amodal = batches.train_batch()
     assert images.shape == (4, 3, 32, 32) and coordinates.shape == (4, 3, 16, 16)
     assert visible.shape == amodal.shape == (4, 16, 16) and float(visible.max()) <= 1.0
+    # A 48 px net (24 x 24 maps) reads the 16 x 16 targets resampled to its cells.
+    wide = DenseBatches(cache, DenseConfig(TARGETS, crop_size=48), models, settings, 0)
+    ids = np.arange(6)
+    coarse, fine = batches.targets(ids), wide.targets(ids)
+    assert fine[0].shape == (6, 24, 24, 3) and fine[1].shape == fine[2].shape == (6, 24, 24)
+    for small, large in zip(coarse, fine):
+        np.testing.assert_array_equal(large[:, ::3, ::3], small[:, ::2, ::2])
+        np.testing.assert_array_equal(large[:, 1::3, 1::3], small[:, 1::2, 1::2])
     # A version-1 cache (no dense targets) still reads, for Q-Net, and is refused here.
     plain = CropScenes({n: lmo_models[n] for n in TARGETS}, lmo_frames[0].camera, seed=5,
                        crop_size=96)
@@ -200,7 +208,7 @@ def test_dense_cache_feeds_batches_and_a_version_1_cache_is_refused(
     assert 'format_version' not in json.loads((tmp_path / 'plain' / 'meta.json').read_text())
     old = CropCache(tmp_path / 'plain')
     assert old.dense_size == 0 and old.crop.shape == (2, 96, 96, 3)
-    with pytest.raises(InputError, match='dense targets of size 0'):
+    with pytest.raises(InputError, match='no dense targets'):
         DenseBatches(old, config, models, settings, 0)
     with pytest.raises(InputError, match='"dense_size" differs'):
         CropCache([tmp_path / 'dense', tmp_path / 'plain'])
@@ -301,3 +309,23 @@ def test_the_stage_cuts_crops_as_qnet_and_solves_one_pose_each(lmo_frames, lmo_m
     assert len(poses) == count
     empty, none = stage(frame.load_image(), frame.camera, [])
     assert empty.coordinates.shape == (0, 16, 16, 3) and none == []
+
+
+def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_models):
+    network = load_network(DEFAULT_DENSE_WEIGHTS, 'dense', list(lmo_models))
+    frame = lmo_frames[0]
+    detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances
+                  if np.all(np.isfinite(i.box_uv))]
+    image = frame.load_image()
+    _, alone = DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=1)(
+        image, frame.camera, detections)
+    _, pooled = DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=3)(
+        image, frame.camera, detections)
+    assert len(detections) >= 4 and sum(p is not None for p in alone) >= len(detections) - 1
+    for one, other in zip(alone, pooled):
+        assert (one is None) == (other is None)
+        if one is not None:
+            np.testing.assert_array_equal(one.rotation, other.rotation)
+            np.testing.assert_array_equal(one.translation, other.translation)
+    with pytest.raises(InputError, match='PnP threads must be >= 0'):
+        DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=-1)

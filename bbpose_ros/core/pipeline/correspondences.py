@@ -17,11 +17,15 @@ The dense correspondence stage: a frame's detections -> dense maps -> PnP poses.
 
 All crops of a frame go through the dense net (``nets.dense``) in one batch; each crop is
 cut as Q-Net's (square, the net's ``context``, around the detection's amodal box), and
-its maps give a pose by PnP with RANSAC (``geometry.dense_pnp``).
+its maps give a pose by PnP with RANSAC (``geometry.dense_pnp``). The crops' PnP solves run
+on a small thread pool: OpenCV releases the GIL, and each solve seeds its own RANSAC, so
+the poses do not depend on the pool.
 """
 
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+import os
 
 import numpy as np
 import torch
@@ -64,6 +68,8 @@ class DenseCorrespondenceEstimator:
         network: a DenseNet (a copy is prepared for inference by ``make_runner``).
         models: {name: ObjectModel} of its objects (for the model boxes).
         backend, device, threads: see ``backends.make_runner``.
+        pnp_threads: threads the crops' PnP solves are spread over (0: one per core; 1:
+            in the calling thread).
 
     Attributes:
         precision: 'fp32': the dense net always runs in float (its int8 graph cost accuracy:
@@ -75,7 +81,9 @@ class DenseCorrespondenceEstimator:
 
     def __init__(self, network: DenseNet, models: Mapping[str, ObjectModel],
                  backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, pnp_threads: int = 0) -> None:
+        if pnp_threads < 0:
+            raise InputError(f'PnP threads must be >= 0 (0: one per core), got {pnp_threads}')
         self.config = network.config
         missing = [name for name in self.config.objects if name not in models]
         if missing:
@@ -84,6 +92,8 @@ class DenseCorrespondenceEstimator:
         self.boxes = {name: model_box(models[name].vertices) for name in self.config.objects}
         self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
                                    dynamic_batch=True)
+        workers = pnp_threads or os.cpu_count() or 1
+        self._pnp_pool = ThreadPoolExecutor(workers, 'dense-pnp') if workers > 1 else None
 
     def maps(self, image_rgb: np.ndarray, detections: Sequence[Detection]) -> DenseMaps:
         """Compute the dense maps of each detection's crop (one batch)."""
@@ -104,11 +114,15 @@ class DenseCorrespondenceEstimator:
                  detections: Sequence[Detection]) -> tuple[DenseMaps, list[DensePose | None]]:
         """Return the maps and one PnP pose per detection (None: too few masked cells)."""
         maps = self.maps(image_rgb, detections)
-        poses = [pose_from_dense_maps(maps.coordinates[k], maps.visible[k],
-                                      maps.squares_uv[k], camera,
-                                      *self.boxes[detection.object_name])
-                 for k, detection in enumerate(detections)]
-        return maps, poses
+
+        def solve(k: int) -> DensePose | None:
+            return pose_from_dense_maps(maps.coordinates[k], maps.visible[k],
+                                        maps.squares_uv[k], camera,
+                                        *self.boxes[detections[k].object_name])
+        crops = range(len(detections))
+        if self._pnp_pool is None or len(detections) < 2:
+            return maps, [solve(k) for k in crops]
+        return maps, list(self._pnp_pool.map(solve, crops))
 
     def _blank_batch(self, count):
         size = self.config.crop_size

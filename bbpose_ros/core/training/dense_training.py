@@ -75,6 +75,19 @@ class DenseTrainSettings:
     frozen_blocks: int = 5
 
 
+def target_cells(cache_size: int, map_size: int) -> np.ndarray | None:
+    """
+    (map_size,) cache cell under each map cell's centre, or None where the sizes agree.
+
+    A cache rendered at another grid size serves a network by nearest-cell resampling of
+    its targets (coordinates, visible and amodal shares alike, so a cell's coordinate target
+    and its share stay the pair the renderer wrote).
+    """
+    if cache_size == map_size:
+        return None
+    return ((np.arange(map_size) + 0.5) * cache_size / map_size).astype(int)
+
+
 def freeze_early_blocks(network: DenseNet, blocks: int) -> None:
     """
     Keep the trunk's stem and first ``blocks`` blocks at their (ImageNet) weights.
@@ -117,7 +130,8 @@ class DenseBatches:
     Draws dense training batches from a CropCache with dense targets.
 
     Args:
-        cache: CropCache whose ``dense_size`` is the network's map size.
+        cache: CropCache with dense targets (``dense_size`` > 0; resampled to the
+            network's map size M where it differs: ``target_cells``).
         config: DenseConfig of the network.
         models: {name: ObjectModel} for the model boxes and symmetries.
         settings: DenseTrainSettings.
@@ -128,11 +142,9 @@ class DenseBatches:
     def __init__(self, cache: CropCache, config: DenseConfig,
                  models: Mapping[str, ObjectModel], settings: DenseTrainSettings,
                  seed: int) -> None:
-        if cache.dense_size != config.map_size:
-            raise InputError(f'the crop cache has dense targets of size {cache.dense_size} '
-                             f'(0: none), the network needs {config.map_size}; render one '
-                             f'with "bbpose train render-crops --dense-size '
-                             f'{config.map_size}"')
+        if not cache.dense_size:
+            raise InputError('the crop cache has no dense targets; render one with "bbpose '
+                             f'train render-crops --dense-size {config.map_size}"')
         missing = [name for name in config.objects if name not in cache.objects]
         if missing:
             raise InputError(f'the crop cache lacks the object(s) {", ".join(missing)}')
@@ -149,6 +161,7 @@ class DenseBatches:
         self.boxes = np.array([model_box(m.vertices) for m in object_models])  # (O, 2, 3)
         self.symmetries = [m.symmetry_transforms for m in object_models]
         self.symmetry_index = self._canonical_symmetries()
+        self.target_cells = target_cells(cache.dense_size, config.map_size)
         self.rng = np.random.default_rng(seed)
         self.generator = torch.Generator().manual_seed(seed)
 
@@ -184,7 +197,10 @@ class DenseBatches:
                     coordinates[row], self.symmetries[obj][k], *self.boxes[obj])
         visible = cache.visible_mask[ids].astype(np.float32) / 255.0
         amodal = cache.amodal_mask[ids].astype(np.float32) / 255.0
-        return coordinates, visible, amodal
+        cells = self.target_cells
+        if cells is None:
+            return coordinates, visible, amodal
+        return tuple(maps[:, cells][:, :, cells] for maps in (coordinates, visible, amodal))
 
     def make(self, ids: np.ndarray, augment: float) -> tuple[torch.Tensor, ...]:
         """
