@@ -107,11 +107,14 @@ photos:
 	@echo "[photos] $$(find $(PHOTOS) -name '*.jpg' -o -name '*.png' | wc -l) images in $(PHOTOS)"
 
 # The dense net's table-top crop caches (2000 scenes a seed) and its fine-tuning stages
-# share these options; each stage adds its caches, start, length and seed.
+# share these options; each stage adds its caches, start, length, seed and crop size.
 TABLE_DENSE_CROPS = --scene-style table --scenes 2000 --crop-size 96 --dense-size 32 \
 	--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-DENSE_TABLE_FT = --augment strong --crop-size 64 --frozen-blocks 0 --coordinate-weight 3 \
+DENSE_TABLE_FT = --augment strong --frozen-blocks 0 --coordinate-weight 3 \
 	--batch 32 --lr 1e-3 --threads 2 --real-val
+# The last stages read every table-top crop cache (with 28: 18 000 scenes); the dense
+# net's last one at 96 px crops (48x48 maps, the 32x32 targets resampled to them).
+TABLE_DENSE_29_37 = $(foreach seed,29 30 32 33 34 35 36 37,$(CACHE)/crops96_table_dense$(seed))
 # Q-Net's later table-top stages train on the same crop caches.
 QNET_TABLE_FT = --augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --channels 64 \
 	--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
@@ -189,17 +192,17 @@ weights: setup photos
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
 		--extra-cache $(CACHE)/crops96_table_dense27 \
 		--run-dir $(CACHE)/runs/dense_table2_ft --init $(CACHE)/runs/dense_table26.pt \
-		--steps 4000 --every 1000 --seed 9 $(DENSE_TABLE_FT) \
+		--steps 4000 --every 1000 --seed 9 $(DENSE_TABLE_FT) --crop-size 64 \
 		--export $(CACHE)/runs/dense_table27.pt
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
 		--extra-cache $(CACHE)/crops96_table_dense27 \
 		--run-dir $(CACHE)/runs/dense_table3_ft --init $(CACHE)/runs/dense_table27.pt \
-		--steps 4000 --every 1000 --seed 10 $(DENSE_TABLE_FT) \
+		--steps 4000 --every 1000 --seed 10 $(DENSE_TABLE_FT) --crop-size 64 \
 		--export $(CACHE)/runs/dense_table27b.pt
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense26 \
 		--extra-cache $(CACHE)/crops96_table_dense27 \
 		--run-dir $(CACHE)/runs/dense_table4_ft --init $(CACHE)/runs/dense_table27b.pt \
-		--steps 6000 --every 1500 --seed 11 $(DENSE_TABLE_FT) \
+		--steps 6000 --every 1500 --seed 11 $(DENSE_TABLE_FT) --crop-size 64 \
 		--export $(CACHE)/runs/dense_table27c.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 28 \
 		--cache $(CACHE)/crops96_table_dense28 $(TABLE_DENSE_CROPS)
@@ -208,16 +211,16 @@ weights: setup photos
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
 		--extra-cache $(CACHE)/crops96_table_dense29 \
 		--run-dir $(CACHE)/runs/dense_table5_ft --init $(CACHE)/runs/dense_table27c.pt \
-		--steps 6000 --every 1500 --seed 12 $(DENSE_TABLE_FT) \
+		--steps 6000 --every 1500 --seed 12 $(DENSE_TABLE_FT) --crop-size 64 \
 		--export $(CACHE)/runs/dense_table29e.pt
 	$(BIN)/bbpose train render-crops --dataset $(DATASET) --seed 30 \
 		--cache $(CACHE)/crops96_table_dense30 $(TABLE_DENSE_CROPS)
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
 		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
 		--run-dir $(CACHE)/runs/dense_table6_ft --init $(CACHE)/runs/dense_table29e.pt \
-		--steps 6000 --every 1500 --seed 13 $(DENSE_TABLE_FT) \
+		--steps 6000 --every 1500 --seed 13 $(DENSE_TABLE_FT) --crop-size 64 \
 		--export $(CACHE)/runs/dense_table30f.pt
-	for seed in 32 33 34 35; do $(BIN)/bbpose train render-crops --dataset $(DATASET) \
+	for seed in 32 33 34 35 36 37; do $(BIN)/bbpose train render-crops --dataset $(DATASET) \
 		--seed $$seed --cache $(CACHE)/crops96_table_dense$$seed $(TABLE_DENSE_CROPS) || exit 1; done
 	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
 		--extra-cache $(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
@@ -229,7 +232,11 @@ weights: setup photos
 		$(CACHE)/crops96_table_dense29 $(CACHE)/crops96_table_dense30 \
 		$(CACHE)/crops96_table_dense32 $(CACHE)/crops96_table_dense33 \
 		--run-dir $(CACHE)/runs/qnet_table4_ft --init $(CACHE)/runs/qnet_table33.pt \
-		--steps 2000 --every 500 --seed 9 $(QNET_TABLE_FT) --export bbpose_ros/weights/qnet.pt
+		--steps 2000 --every 500 --seed 9 $(QNET_TABLE_FT) --export $(CACHE)/runs/qnet_table35.pt
+	$(BIN)/bbpose train qnet --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(TABLE_DENSE_29_37) \
+		--run-dir $(CACHE)/runs/qnet_table5_ft --init $(CACHE)/runs/qnet_table35.pt \
+		--steps 2000 --every 500 --seed 10 $(QNET_TABLE_FT) --export bbpose_ros/weights/qnet.pt
 	$(BIN)/bbpose train quantize --network qnet --weights bbpose_ros/weights/qnet.pt \
 		--cache $(CACHE)/scenes_table_23
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
@@ -237,5 +244,10 @@ weights: setup photos
 		$(CACHE)/crops96_table_dense32 $(CACHE)/crops96_table_dense33 \
 		$(CACHE)/crops96_table_dense34 $(CACHE)/crops96_table_dense35 \
 		--run-dir $(CACHE)/runs/dense_table7_ft --init $(CACHE)/runs/dense_table30f.pt \
-		--steps 8000 --every 2000 --seed 14 $(DENSE_TABLE_FT) \
+		--steps 8000 --every 2000 --seed 14 $(DENSE_TABLE_FT) --crop-size 64 \
+		--export $(CACHE)/runs/dense_table35g.pt
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense28 \
+		--extra-cache $(TABLE_DENSE_29_37) \
+		--run-dir $(CACHE)/runs/dense96_h --init $(CACHE)/runs/dense_table35g.pt \
+		--steps 6000 --every 1500 --seed 15 $(DENSE_TABLE_FT) --crop-size 96 \
 		--export bbpose_ros/weights/dense.pt
