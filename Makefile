@@ -250,4 +250,12 @@ weights: setup photos
 		--extra-cache $(TABLE_DENSE_29_37) \
 		--run-dir $(CACHE)/runs/dense96_h --init $(CACHE)/runs/dense_table35g.pt \
 		--steps 6000 --every 1500 --seed 15 $(DENSE_TABLE_FT) --crop-size 96 \
+		--export $(CACHE)/runs/dense96_h.pt
+	for seed in 38 39; do $(BIN)/bbpose train render-crops --dataset $(DATASET) \
+		--seed $$seed --cache $(CACHE)/crops96_table_dense48_$$seed \
+		$(subst --dense-size 32,--dense-size 48,$(TABLE_DENSE_CROPS)) || exit 1; done
+	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense48_38 \
+		--extra-cache $(CACHE)/crops96_table_dense48_39 \
+		--run-dir $(CACHE)/runs/dense96_i --init $(CACHE)/runs/dense96_h.pt \
+		--steps 4000 --every 1000 --seed 16 $(DENSE_TABLE_FT) --crop-size 96 \
 		--export bbpose_ros/weights/dense.pt
