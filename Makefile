@@ -108,8 +108,9 @@ photos:
 
 # The dense net's table-top crop caches (2000 scenes a seed) and its fine-tuning stages
 # share these options; each stage adds its caches, start, length, seed and crop size.
-TABLE_DENSE_CROPS = --scene-style table --scenes 2000 --crop-size 96 --dense-size 32 \
-	--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+TABLE_CROPS = --scene-style table --scenes 2000 --crop-size 96 --backgrounds $(PHOTOS) \
+	--inplane-range-deg=-60,60
+TABLE_DENSE_CROPS = $(TABLE_CROPS) --dense-size 32
 DENSE_TABLE_FT = --augment strong --frozen-blocks 0 --coordinate-weight 3 \
 	--batch 32 --lr 1e-3 --threads 2 --real-val
 # The last stages read every table-top crop cache (with 28: 18 000 scenes); the dense
@@ -253,7 +254,7 @@ weights: setup photos
 		--export $(CACHE)/runs/dense96_h.pt
 	for seed in 38 39; do $(BIN)/bbpose train render-crops --dataset $(DATASET) \
 		--seed $$seed --cache $(CACHE)/crops96_table_dense48_$$seed \
-		$(subst --dense-size 32,--dense-size 48,$(TABLE_DENSE_CROPS)) || exit 1; done
+		$(TABLE_CROPS) --dense-size 48 || exit 1; done
 	$(BIN)/bbpose train dense --dataset $(DATASET) --cache $(CACHE)/crops96_table_dense48_38 \
 		--extra-cache $(CACHE)/crops96_table_dense48_39 \
 		--run-dir $(CACHE)/runs/dense96_i --init $(CACHE)/runs/dense96_h.pt \
