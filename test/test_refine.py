@@ -25,7 +25,9 @@ from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_pnp import DensePose
 from bbpose_ros.core.geometry.rotations import exp_so3, perturb_pose, rotation_error_deg
+from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.pipeline.correspondences import DenseMaps
+from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
@@ -291,6 +293,75 @@ def test_a_refinement_that_lowers_the_score_gives_the_start_back(viewpoint_model
         assert keep.score == max(start.score, move.score)
         if start.score > move.score:
             np.testing.assert_array_equal(keep.translation, truth.translation)
+
+
+def exact_amodal_masks(frame, truths, models, size=32, context=1.25):
+    """Return ForegroundMasks of the truths' own silhouettes over their squares (a perfect net)."""
+    squares = square_boxes(np.stack([t.box_uv for t in truths]), context)
+    masks = [render_silhouette(frame.camera.cropped(square, size), models[t.object_name].vertices,
+                               models[t.object_name].faces, t.rotation, t.translation)
+             for square, t in zip(squares, truths)]
+    return ForegroundMasks(np.array(masks, dtype=np.float32), squares)
+
+
+def test_the_mask_chooses_the_candidate_the_score_misjudges(viewpoint_models, lmo_models,
+                                                            lmo_frames):
+    models, _ = viewpoint_models
+    picked = {0.0: [], 20.0: []}
+    for frame in lmo_frames[:40:4]:
+        image = frame.load_image()
+        truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.5]
+        if not truths:
+            continue
+        masks = exact_amodal_masks(frame, truths, lmo_models)
+        rng = np.random.default_rng(frame.image_id)
+        groups = [[PoseEstimate(Detection(t.object_name, 1.0, t.box_uv),
+                                *perturb_pose(t.rotation, t.translation, angle, 0.01, rng))
+                   for angle in (50.0, 5.0)] for t in truths]
+        for weight in picked:
+            kept = PoseRefiner(models, mask_choice_weight=weight).best_of(
+                image, frame.camera, groups, choice_masks=masks)
+            picked[weight].extend(rotation_error_deg(p.rotation, t.rotation) < 10.0
+                                  for p, t in zip(kept, truths))
+    assert len(picked[0.0]) >= 15
+    assert np.mean(picked[20.0]) > np.mean(picked[0.0])
+    with pytest.raises(InputError, match='mask_choice_weight must be >= 0'):
+        PoseRefiner(models, mask_choice_weight=-1.0)
+    with pytest.raises(InputError, match='refine_mask_choice_weight'):
+        PipelineOptions(refine_mask_choice_weight=-1.0)
+
+
+def test_a_refinement_that_lowers_the_merit_gives_the_start_back(viewpoint_models, lmo_models,
+                                                                 lmo_frames):
+    models, _ = viewpoint_models
+    weight, given_back = 20.0, 0
+    agreement = MaskAgreement(models)
+    for frame in lmo_frames[:30:3]:
+        image = frame.load_image()
+        truths = [i for i in frame.instances if i.object_name in models]
+        masks = exact_amodal_masks(frame, truths, lmo_models)
+        starts = [PoseEstimate(Detection(t.object_name, 1.0, t.box_uv), t.rotation,
+                               t.translation) for t in truths]
+        kept = PoseRefiner(models, mask_choice_weight=weight)(image, frame.camera, starts,
+                                                              choice_masks=masks)
+        moved = PoseRefiner(models)(image, frame.camera, starts)
+        names = [t.object_name for t in truths]
+        merit_start = np.array([r.score for r in refine_poses(
+            color_bins(image), frame.camera, [models[n] for n in names],
+            [t.rotation for t in truths], [t.translation for t in truths], RefinerConfig(),
+            iterations=0, instances=range(len(truths)))]) + weight * agreement(
+            frame.camera, names, [t.rotation for t in truths],
+            [t.translation for t in truths], masks)
+        merit_moved = np.array([p.refinement_score for p in moved]) + weight * agreement(
+            frame.camera, names, [p.rotation for p in moved], [p.translation for p in moved],
+            masks)
+        for keep, move, truth, start, end in zip(kept, moved, truths, merit_start, merit_moved):
+            if start > end:     # the mask prefers the truth: it is given back
+                np.testing.assert_array_equal(keep.translation, truth.translation)
+                given_back += 1
+            else:
+                np.testing.assert_allclose(keep.translation, move.translation)
+    assert given_back >= 3
 
 
 def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models):

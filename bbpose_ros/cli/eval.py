@@ -103,6 +103,12 @@ def add_pipeline_arguments(parser):
                         default=defaults.refine_occlusions,
                         help="let the poses of a frame hide each other's contour where one "
                              'is nearer the camera (default: %(default)s)')
+    parser.add_argument('--refine-mask-choice-weight', type=float,
+                        default=defaults.refine_mask_choice_weight,
+                        help="where the dense net runs, how much each refined candidate's "
+                             'silhouette agreement with its amodal mask counts beside the '
+                             'refinement score in choosing; 0: the score alone '
+                             '(default %(default)s)')
     parser.add_argument('--pose-source', choices=POSE_SOURCES, default=defaults.pose_source,
                         help='candidate poses from Q-Net + the Bounding Box Equation (qnet, '
                              'the paper), PnP over the dense correspondences (dense), or both '
@@ -131,6 +137,7 @@ def pipeline_options(args):
                                refine_prior_deg=args.refine_prior_deg,
                                refine_prior_mm=args.refine_prior_mm,
                                refine_occlusions=args.refine_occlusions,
+                               refine_mask_choice_weight=args.refine_mask_choice_weight,
                                pose_source=args.pose_source,
                                dense_translation=args.dense_translation,
                                dense_mask=args.dense_mask,
@@ -147,9 +154,10 @@ def build_pipeline(models, args):
         refiner = correspondences = None
         if options.refine:
             from bbpose_ros.core.pipeline.refinement import load_pose_refiner
-            refiner = load_pose_refiner(models, options.refiner_config,
-                                        min_score=options.refine_min_score)
-        if options.refine and options.dense_mask != 'none':
+            refiner = load_pose_refiner(
+                models, options.refiner_config, min_score=options.refine_min_score,
+                mask_choice_weight=options.refine_mask_choice_weight)
+        if options.refine and options.runs_dense:
             from bbpose_ros.core.pipeline.loader import load_correspondences
             correspondences = load_correspondences(models, options, args.dense_weights)
         return PosePipeline(models, refiner=refiner, correspondences=correspondences,
@@ -225,6 +233,7 @@ def run(args):
                         'refine_prior_deg': args.refine_prior_deg,
                         'refine_prior_mm': args.refine_prior_mm,
                         'refine_occlusions': args.refine_occlusions,
+                        'refine_mask_choice_weight': args.refine_mask_choice_weight,
                         'pose_source': args.pose_source,
                         'dense_translation': args.dense_translation,
                         'dense_mask': args.dense_mask,

@@ -198,6 +198,10 @@ PARAMETERS = {
     'refine_occlusions': option_spec(
         'refine_occlusions', "The poses of a frame hide each other's contour lines where one "
         'is nearer the camera (the image shows the occluder there).'),
+    'refine_mask_choice_weight': option_spec(
+        'refine_mask_choice_weight', 'Where the dense net runs, how much each refined '
+        "candidate's silhouette agreement (soft IoU, 0..1) with its amodal mask counts beside "
+        "the refinement score in choosing a detection's pose; 0: the score alone."),
     'pose_source': option_spec(
         'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
         'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '

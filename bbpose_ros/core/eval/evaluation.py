@@ -39,7 +39,7 @@ from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import euler_error_deg, perturb_pose
 from bbpose_ros.core.latency import StageTimer, timing_summary
-from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.pose_pipeline import dense_masks, PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, FrameResult, PoseEstimate
 
 if TYPE_CHECKING:
@@ -309,10 +309,11 @@ def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: Came
                                            rng), source='given')
              for d, t in zip(detections, truths)]
     if pipeline.refiner is not None and poses:
-        masks = None
+        masks = choice_masks = None
         if pipeline.correspondences is not None:      # the dense net's masks guide it
-            masks = pipeline.masks_of(pipeline.correspondences.maps(image_rgb, detections))
-        poses = pipeline.refiner(image_rgb, camera, poses, masks)
+            maps = pipeline.correspondences.maps(image_rgb, detections)
+            masks, choice_masks = pipeline.masks_of(maps), dense_masks(maps, 'amodal')
+        poses = pipeline.refiner(image_rgb, camera, poses, masks, choice_masks)
         timer.lap('refinement')
     return FrameResult(poses, timer.total())
 

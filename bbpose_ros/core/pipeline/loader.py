@@ -83,7 +83,8 @@ def load_pipeline(models: Mapping[str, ObjectModel],
     if options.refine:
         refiner = load_pose_refiner(models, options.refiner_config,
                                     min_score=options.refine_min_score, progress=False,
-                                    log=refiner_log)
+                                    log=refiner_log,
+                                    mask_choice_weight=options.refine_mask_choice_weight)
     agreement = None
     if options.ranks_by_mask:     # the silhouettes come from the refiner's viewpoint models
         agreement = MaskAgreement(refiner.viewpoint_models if refiner is not None else

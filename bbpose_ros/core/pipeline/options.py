@@ -72,6 +72,11 @@ class PipelineOptions:
         refine_threads: threads the refinement's per-line loops run on; 0: one per core.
         refine_occlusions: the poses refined together hide each other's contour where one
             is nearer the camera (``RefinerConfig.model_occlusions``).
+        refine_mask_choice_weight: where the dense net runs, how much each refined
+            candidate's silhouette agreement (soft IoU 0..1) with its amodal mask counts
+            beside the refinement score in choosing a detection's pose
+            (``PoseRefiner.mask_choice_weight``); 0: the score alone. It does not make the
+            dense net run.
         pose_source: where each detection's candidate poses come from: 'qnet' (Q-Net's
             hypotheses + the Bounding Box Equation, the paper's path), 'dense' (PnP over
             the dense net's correspondences, with PnP's or the equation's translation per
@@ -107,6 +112,7 @@ class PipelineOptions:
     refine_prior_mm: float = _option(0.0, 0.0, 1000.0)
     refine_threads: int = _option(0, 0, 256)
     refine_occlusions: bool = _option(True)
+    refine_mask_choice_weight: float = _option(2.0, 0.0, 1000.0)
     pose_source: str = _option('qnet', choices=POSE_SOURCES)
     dense_translation: str = _option('both', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)

@@ -168,9 +168,13 @@ class PosePipeline:
         found = [k for k, group in enumerate(groups) if group]
         if self.refiner is None or not found:
             return FrameResult([groups[k][0] for k in found], timer.total())
-        masks = None if dense is None else self.masks_of(dense[0])
+        masks = choice_masks = None
+        if dense is not None:
+            masks = self.masks_of(dense[0])
+            choice_masks = dense_masks(dense[0], 'amodal').take(found)
         poses = self.refiner.best_of(image_rgb, camera, [groups[k] for k in found],
-                                     None if masks is None else masks.take(found))
+                                     None if masks is None else masks.take(found),
+                                     choice_masks)
         timer.lap('refinement')
         return FrameResult(poses, timer.total())
 

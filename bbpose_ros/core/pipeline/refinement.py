@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 import dataclasses
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -33,6 +34,7 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
@@ -66,35 +68,50 @@ class PoseRefiner:
             pose as refining the chosen candidate in one run, unless keep_better_start gave
             a start back or no colours can be measured at the pose it reached (then it ends
             as 'outside_image'); with another rate every candidate is refined to the end.
+        mask_choice_weight: where a detection's candidates come with a predicted amodal mask
+            (``best_of``'s ``choice_masks``), each is chosen by its merit, the score + this
+            x the soft IoU (0..1, ``mask_agreement``) of its silhouette with the mask, and a
+            refinement that lowers the merit gives its start back: the mask judges the
+            whole object where the score judges a band around the contour. 0: the score
+            alone.
 
     """
 
     def __init__(self, viewpoint_models: Mapping[str, ViewpointModel],
                  config: RefinerConfig | None = None, min_score: float = 0.0,
-                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS) -> None:
+                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS,
+                 mask_choice_weight: float = 0.0) -> None:
         if not 0.0 <= min_score <= 1.0:
             raise InputError(f'refinement min_score must be in [0, 1], got {min_score}')
         if screening_iterations < 1:
             raise InputError(f'screening_iterations must be >= 1, got {screening_iterations}')
+        if not mask_choice_weight >= 0.0:
+            raise InputError(f'mask_choice_weight must be >= 0, got {mask_choice_weight}')
         self.config = config or RefinerConfig()
         self.min_score = float(min_score)
         self.screening_iterations = int(screening_iterations)
+        self.mask_choice_weight = float(mask_choice_weight)
         self.viewpoint_models = dict(viewpoint_models)
+        self._agreement = MaskAgreement(self.viewpoint_models)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
-                 poses: Sequence[PoseEstimate],
-                 masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
+                 poses: Sequence[PoseEstimate], masks: ForegroundMasks | None = None,
+                 choice_masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
         """Refine the poses (with their masks, if any); keep those scored >= min_score."""
-        return self.best_of(image_rgb, camera, [[pose] for pose in poses], masks)
+        return self.best_of(image_rgb, camera, [[pose] for pose in poses], masks,
+                            choice_masks)
 
     def best_of(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                 candidates: Sequence[Sequence[PoseEstimate]],
-                masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
+                masks: ForegroundMasks | None = None,
+                choice_masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
         """
-        Refine the candidate poses of each detection and keep the best-scored one.
+        Refine the candidate poses of each detection and keep the best one.
 
-        Every candidate gets ``screening_iterations``; the best-scored candidate of each
-        detection then continues to the end of the schedule.
+        Every candidate gets ``screening_iterations``; the best of each detection (by its
+        score, or with ``choice_masks`` by its merit: score + ``mask_choice_weight`` x mask
+        agreement) then continues to the end of the schedule. With ``choice_masks``, a
+        refinement that lowered the merit gives its start back.
 
         Args:
             image_rgb: (H, W, 3) uint8 image.
@@ -103,6 +120,9 @@ class PoseRefiner:
                 hypothesis), all of the same object.
             masks: per detection, a predicted foreground mask (the dense net's), or None:
                 the colours alone.
+            choice_masks: per detection, the dense net's amodal mask its candidates'
+                silhouettes are compared with in choosing one and in keeping the
+                refinement, or None: the score alone.
 
         Returns:
             Per detection, the best refined candidate when it scores >= min_score, in the
@@ -121,12 +141,17 @@ class PoseRefiner:
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
                                masks, self.screening_iterations if screened else None)
         best = {}
-        for (k, pose), result in zip(jobs, results):
-            if k not in best or result.score > best[k][1].score:
-                best[k] = (pose, result)
+        merits = self._merits(camera, [k for k, _ in jobs], [p.object_name for _, p in jobs],
+                              [(r.rotation, r.translation) for r in results],
+                              [r.score for r in results], choice_masks)
+        for (k, pose), result, merit in zip(jobs, results, merits):
+            if k not in best or merit > best[k][2]:
+                best[k] = (pose, result, merit)
+        # {detection: (its chosen candidate, the refinement's end, the score at the start)}
+        chosen = {k: (pose, result, result.start_score) for k, (pose, result, _) in best.items()}
         if screened:
             # Winners that failed the screening stay failed, as they would have in one run.
-            going = [(k, pose, result) for k, (pose, result) in best.items() if result.ok]
+            going = [(k, pose, result) for k, (pose, result, _) in chosen.items() if result.ok]
             finished = self._refine(
                 bins, camera, [(k, pose) for k, pose, _ in going],
                 [(result.rotation, result.translation) for *_, result in going], masks,
@@ -136,17 +161,53 @@ class PoseRefiner:
                 if not result.ok:       # a failure gives the candidate's own start back
                     result = dataclasses.replace(result, rotation=pose.rotation,
                                                  translation=pose.translation)
-                best[k] = (pose, result)
+                chosen[k] = (pose, result, chosen[k][2])
+        if choice_masks is not None:
+            self._give_back_starts(camera, chosen, choice_masks)
         refined = []
         for k, group in enumerate(candidates):
-            if k not in best:
+            if k not in chosen:
                 if group[0].object_name not in self.viewpoint_models:
                     refined.append(group[0])
                 continue
-            pose, result = best[k]
+            pose, result, _ = chosen[k]
             if result.score >= self.min_score:
                 refined.append(with_refinement(pose, result))
         return refined
+
+    def _merits(self, camera, detections, names, poses, scores, choice_masks):
+        """(J,) scores + ``mask_choice_weight`` x the agreement of the poses with the masks."""
+        scores = np.asarray(scores, dtype=float)
+        if choice_masks is None or self.mask_choice_weight == 0.0 or not len(detections):
+            return scores
+        agreement = self._agreement(camera, names, [r for r, _ in poses], [t for _, t in poses],
+                                    choice_masks.take(detections))
+        return scores + self.mask_choice_weight * agreement
+
+    def _give_back_starts(self, camera, chosen, choice_masks):
+        """
+        Give a detection its start back where the refinement lowered its merit (in place).
+
+        ``RefinerConfig.keep_better_start`` judges by the score alone; with a mask, the
+        merit (``_merits``) judges the start against the end, so that a right start the
+        contour evidence pulls off (its fixed point) is kept where the mask disagrees.
+        """
+        ran = [(k, pose, result, start) for k, (pose, result, start) in chosen.items()
+               if result.ok and math.isfinite(start)]
+        if self.mask_choice_weight == 0.0 or not ran:
+            return
+        detections = [k for k, *_ in ran] * 2
+        names = [pose.object_name for _, pose, *_ in ran] * 2
+        poses = ([(pose.rotation, pose.translation) for _, pose, *_ in ran]
+                 + [(result.rotation, result.translation) for *_, result, _ in ran])
+        scores = [start for *_, start in ran] + [result.score for *_, result, _ in ran]
+        merits = self._merits(camera, detections, names, poses, scores,
+                              choice_masks).reshape(2, -1)
+        for (k, pose, result, start), back in zip(ran, merits[0] > merits[1]):
+            if back:
+                chosen[k] = (pose, dataclasses.replace(result, rotation=pose.rotation,
+                                                       translation=pose.translation,
+                                                       score=start), start)
 
     def _refine(self, bins, camera, jobs, starts, masks, iterations=None, first_iteration=0,
                 prior_centres=None):
@@ -183,7 +244,8 @@ def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:
 def load_pose_refiner(models: Mapping[str, ObjectModel], config: RefinerConfig | None = None,
                       min_score: float = 0.0, cache_dir: Path | str | None = None,
                       progress: bool = True,
-                      log: Callable[[str], None] | None = None) -> PoseRefiner:
+                      log: Callable[[str], None] | None = None,
+                      mask_choice_weight: float = 0.0) -> PoseRefiner:
     """
     Build a PoseRefiner of the objects, viewpoint models from the cache (built if new).
 
@@ -192,4 +254,4 @@ def load_pose_refiner(models: Mapping[str, ObjectModel], config: RefinerConfig |
     """
     compile_kernels()
     return PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
-                       config, min_score)
+                       config, min_score, mask_choice_weight=mask_choice_weight)

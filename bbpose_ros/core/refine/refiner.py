@@ -147,6 +147,8 @@ class Refinement:
             during the run), 'outside_image', 'too_few_lines'.
         histograms: the colour model at the end; for a start with a given model (a
             track's), the colours measured at the final pose, to blend into it.
+        start_score: the score at the start (measured for ``keep_better_start``), NaN when
+            it was not measured, 0 unless 'ok'.
 
     """
 
@@ -155,6 +157,7 @@ class Refinement:
     score: float
     status: str
     histograms: ColorHistograms | None = field(default=None, repr=False)
+    start_score: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -288,9 +291,11 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
         hist_f[final], hist_b[final] = seen_f[final], seen_b[final]
     failed = status != 'ok'
     rotation[failed], translation[failed] = start_rotation[failed], start_translation[failed]
-    return [Refinement(rotation[k], translation[k],
-                       float(scores[k]) if status[k] == 'ok' else 0.0, str(status[k]),
-                       ColorHistograms(hist_f[k], hist_b[k]))
+    ok = status == 'ok'
+    return [Refinement(rotation[k], translation[k], float(scores[k]) if ok[k] else 0.0,
+                       str(status[k]), ColorHistograms(hist_f[k], hist_b[k]),
+                       math.nan if start_scores is None else
+                       float(start_scores[k]) if ok[k] else 0.0)
             for k in range(count)]
 
 
