@@ -112,7 +112,7 @@ class PipelineOptions:
     refine_prior_mm: float = _option(0.0, 0.0, 1000.0)
     refine_threads: int = _option(0, 0, 256)
     refine_occlusions: bool = _option(True)
-    refine_mask_choice_weight: float = _option(2.0, 0.0, 1000.0)
+    refine_mask_choice_weight: float = _option(8.0, 0.0, 1000.0)
     pose_source: str = _option('qnet', choices=POSE_SOURCES)
     dense_translation: str = _option('both', choices=DENSE_TRANSLATIONS)
     dense_mask: str = _option('none', choices=DENSE_MASKS)
