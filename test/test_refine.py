@@ -35,7 +35,7 @@ from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
-from bbpose_ros.core.refine.refiner import refine_poses, RefinerConfig
+from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
 from bbpose_ros.core.refine.region_modality import MIN_VARIANCE, RegionModality
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at_rotation,
@@ -44,6 +44,7 @@ from bbpose_ros.core.render.reference import render_silhouette
 
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 NAMES = ('ape', 'driller', 'duck', 'holepuncher')
+BLANK = np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8)
 
 
 def refine_one(model, image, camera, rotation, translation, config=None):
@@ -362,6 +363,57 @@ def test_a_refinement_that_lowers_the_merit_gives_the_start_back(viewpoint_model
             else:
                 np.testing.assert_allclose(keep.translation, move.translation)
     assert given_back >= 3
+
+
+class ScriptedRefiner(PoseRefiner):
+    """A PoseRefiner whose refinements and mask agreements are given: the choice alone."""
+
+    def __init__(self, models, runs, agreement, **kwargs):
+        super().__init__(models, **kwargs)
+        self.runs = list(runs)      # per call of _refine, its list of Refinement
+        self._agreement = lambda camera, names, rotations, translations, masks: np.array(
+            [agreement(t) for t in translations])
+
+    def _refine(self, *args, **kwargs):
+        return self.runs.pop(0)
+
+
+def test_the_mask_merit_never_prefers_a_failed_candidate(viewpoint_models):
+    models, _ = viewpoint_models
+    detection = Detection('ape', 1.0, np.array([0.0, 0.0, 50.0, 50.0]))
+    starts = [PoseEstimate(detection, np.eye(3), np.array([x, 0.0, 1.0])) for x in (0.1, 0.2)]
+    failed = Refinement(np.eye(3), starts[0].translation, 0.0, 'too_few_lines', start_score=0.0)
+    ran = Refinement(np.eye(3), np.array([0.25, 0.0, 1.0]), 0.3, 'ok', start_score=0.2)
+    masks = ForegroundMasks(np.zeros((1, 4, 4)), np.zeros((1, 4)))
+    # The failed candidate's start agrees with the mask best; the one that ran is kept.
+    agreement = {0.1: 0.9, 0.2: 0.1, 0.25: 0.5}
+    refiner = ScriptedRefiner(models, [[failed, ran]], lambda t: agreement[round(t[0], 2)],
+                              mask_choice_weight=8.0, screening_iterations=100)
+    kept = refiner.best_of(BLANK, CAMERA, [starts], choice_masks=masks)
+    assert kept[0].source == starts[1].source and kept[0].refinement_score == 0.3
+    np.testing.assert_array_equal(kept[0].translation, ran.translation)
+
+
+def test_a_screened_candidate_is_judged_against_its_own_start(viewpoint_models):
+    models, _ = viewpoint_models
+    detection = Detection('ape', 1.0, np.array([0.0, 0.0, 50.0, 50.0]))
+    starts = [PoseEstimate(detection, np.eye(3), np.array([x, 0.0, 1.0])) for x in (0.1, 0.2)]
+    screening = [Refinement(np.eye(3), np.array([0.15, 0.0, 1.0]), 0.6, 'ok', start_score=0.8),
+                 Refinement(np.eye(3), np.array([0.3, 0.0, 1.0]), 0.4, 'ok', start_score=0.5)]
+    # The continuation starts at the screened pose (its start score 0.55); it ends lower
+    # than the candidate's own start scored (0.8), so that start comes back.
+    ending = [Refinement(np.eye(3), np.array([0.16, 0.0, 1.0]), 0.7, 'ok', start_score=0.55)]
+    masks = ForegroundMasks(np.zeros((1, 4, 4)), np.zeros((1, 4)))
+    refiner = ScriptedRefiner(models, [screening, ending], lambda t: 0.5,
+                              mask_choice_weight=8.0, screening_iterations=6)
+    kept = refiner.best_of(BLANK, CAMERA, [starts], choice_masks=masks)
+    np.testing.assert_array_equal(kept[0].translation, starts[0].translation)
+    assert kept[0].refinement_score == 0.8
+    # Without masks the end is kept, as before the merit.
+    refiner = ScriptedRefiner(models, [screening, ending], lambda t: 0.5,
+                              mask_choice_weight=8.0, screening_iterations=6)
+    kept = refiner.best_of(BLANK, CAMERA, [starts])
+    np.testing.assert_array_equal(kept[0].translation, ending[0].translation)
 
 
 def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models):

@@ -157,7 +157,9 @@ def build_pipeline(models, args):
             refiner = load_pose_refiner(
                 models, options.refiner_config, min_score=options.refine_min_score,
                 mask_choice_weight=options.refine_mask_choice_weight)
-        if options.refine and options.runs_dense:
+        # The dense net runs for the refiner's foreground mask or its choice by the mask.
+        if options.refine and (options.dense_mask != 'none' or (
+                options.runs_dense and options.refine_mask_choice_weight > 0.0)):
             from bbpose_ros.core.pipeline.loader import load_correspondences
             correspondences = load_correspondences(models, options, args.dense_weights)
         return PosePipeline(models, refiner=refiner, correspondences=correspondences,

@@ -65,15 +65,17 @@ class PoseRefiner:
             many iterations and only the best-scored continues (at least the config's
             iterations: every candidate is refined to the end). Screening needs the config's
             histogram_rate 1 (colours re-measured in full), under which it gives the same
-            pose as refining the chosen candidate in one run, unless keep_better_start gave
-            a start back or no colours can be measured at the pose it reached (then it ends
-            as 'outside_image'); with another rate every candidate is refined to the end.
+            pose as refining the chosen candidate in one run, unless a start was given back
+            (keep_better_start, or the mask merit below) or no colours can be measured at the
+            pose it reached (then it ends as 'outside_image'); with another rate every
+            candidate is refined to the end.
         mask_choice_weight: where a detection's candidates come with a predicted amodal mask
-            (``best_of``'s ``choice_masks``), each is chosen by its merit, the score + this
-            x the soft IoU (0..1, ``mask_agreement``) of its silhouette with the mask, and a
-            refinement that lowers the merit gives its start back: the mask judges the
-            whole object where the score judges a band around the contour. 0: the score
-            alone.
+            (``best_of``'s ``choice_masks``), each that ran is chosen by its merit, the score
+            + this x the soft IoU (0..1, ``mask_agreement``) of its silhouette with the
+            mask, and, with the config's keep_better_start (which measures the score at the
+            start), a refinement that lowers the merit gives its start back with the score
+            there (``min_score`` then judges that score): the mask judges the whole object
+            where the score judges a band around the contour. 0: the score alone.
 
     """
 
@@ -97,7 +99,7 @@ class PoseRefiner:
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  poses: Sequence[PoseEstimate], masks: ForegroundMasks | None = None,
                  choice_masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
-        """Refine the poses (with their masks, if any); keep those scored >= min_score."""
+        """Refine the poses (with masks, if any: see ``best_of``); keep those >= min_score."""
         return self.best_of(image_rgb, camera, [[pose] for pose in poses], masks,
                             choice_masks)
 
@@ -110,8 +112,8 @@ class PoseRefiner:
 
         Every candidate gets ``screening_iterations``; the best of each detection (by its
         score, or with ``choice_masks`` by its merit: score + ``mask_choice_weight`` x mask
-        agreement) then continues to the end of the schedule. With ``choice_masks``, a
-        refinement that lowered the merit gives its start back.
+        agreement) then continues to the end of the schedule. With ``choice_masks`` and the
+        config's keep_better_start, a refinement that lowered the merit gives its start back.
 
         Args:
             image_rgb: (H, W, 3) uint8 image.
@@ -141,9 +143,14 @@ class PoseRefiner:
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
                                masks, self.screening_iterations if screened else None)
         best = {}
-        merits = self._merits(camera, [k for k, _ in jobs], [p.object_name for _, p in jobs],
-                              [(r.rotation, r.translation) for r in results],
-                              [r.score for r in results], choice_masks)
+        # A failed candidate (score 0, its start given back) gets no agreement: any
+        # candidate that ran stays ahead of it, as by the score alone.
+        scores = [r.score for r in results]
+        merits = np.where([r.ok for r in results],
+                          self._merits(camera, [k for k, _ in jobs],
+                                       [p.object_name for _, p in jobs],
+                                       [(r.rotation, r.translation) for r in results], scores,
+                                       choice_masks), scores)
         for (k, pose), result, merit in zip(jobs, results, merits):
             if k not in best or merit > best[k][2]:
                 best[k] = (pose, result, merit)
