@@ -139,6 +139,8 @@ class PosePipeline:
             dense = (self.correspondences(image_rgb, camera, detections) if self.dense_poses
                      else (self.correspondences.maps(image_rgb, detections), None))
             timer.lap('correspondences')
+        # The amodal masks rank Q-Net's hypotheses and judge the refined candidates.
+        amodal = None if dense is None else dense_masks(dense[0], 'amodal')
         source = 'given' if rotations is not None else 'qnet'
         if detections and rotations is None and self.rotation_estimator is not None:
             rotations = self.rotation_estimator(image_rgb, camera, detections)
@@ -155,9 +157,8 @@ class PosePipeline:
             if isinstance(rotations, RotationHypotheses):
                 if self.hypothesis_selector is None:
                     self.hypothesis_selector = HypothesisSelector(self.models)
-                rotations = self.hypothesis_selector.ranked(
-                    camera, detections, rotations, self.candidates,
-                    None if dense is None else dense_masks(dense[0], 'amodal'))
+                rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
+                                                            self.candidates, amodal)
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
             solved = self.translations(camera, [d for d in detections for _ in range(count)],
@@ -168,13 +169,10 @@ class PosePipeline:
         found = [k for k, group in enumerate(groups) if group]
         if self.refiner is None or not found:
             return FrameResult([groups[k][0] for k in found], timer.total())
-        masks = choice_masks = None
-        if dense is not None:
-            masks = self.masks_of(dense[0])
-            choice_masks = dense_masks(dense[0], 'amodal').take(found)
+        masks = None if dense is None else self.masks_of(dense[0])
         poses = self.refiner.best_of(image_rgb, camera, [groups[k] for k in found],
                                      None if masks is None else masks.take(found),
-                                     choice_masks)
+                                     None if amodal is None else amodal.take(found))
         timer.lap('refinement')
         return FrameResult(poses, timer.total())
 
