@@ -210,9 +210,30 @@ def test_color_response_casts_a_colour_and_bends_the_mid_tones():
     assert len(np.unique(cast.reshape(-1, 3), axis=0)) == 1 and np.ptp(cast[0, 0]) > 5
 
 
+def test_mesh_brightness_scales_the_colours_and_keeps_the_layout(rendered, lmo_models):
+    _, layout = rendered[0]
+    gains = np.array([draw.color_gain for draw in layout.draws])
+    assert np.all((gains >= CONFIG.color_gain_range[0]) & (gains <= CONFIG.color_gain_range[1]))
+    # Brightness 2 without per-channel spread: every mesh's colours exactly doubled; the
+    # layout and the camera are drawn before the colours, so they stay.
+    config = replace(CONFIG, brightness_range=(2.0, 2.0), color_gain_range=(1.0, 1.0))
+    bright = TableScenes({name: lmo_models[name] for name in TARGETS}, CAMERA, 5, config,
+                         {'can': lmo_models['can']})
+    try:
+        _, doubled = bright.sample_with_layout(0)
+    finally:
+        bright.close()
+    assert [tuple(draw.color_gain) for draw in doubled.draws] == \
+        [(2.0, 2.0, 2.0)] * len(layout.draws)
+    assert [mesh.key for mesh in doubled.meshes] == [mesh.key for mesh in layout.meshes]
+    np.testing.assert_array_equal(doubled.world_to_camera, layout.world_to_camera)
+
+
 def test_bad_config_is_refused(lmo_models):
     with pytest.raises(InputError, match='lights_per_image'):
         TableConfig(lights_per_image=(1, 4))
+    with pytest.raises(InputError, match='brightness_range'):
+        TableConfig(brightness_range=(0.0, 2.0))
     with pytest.raises(InputError, match='camera_elevation'):
         replace(CONFIG, camera_elevation_range_deg=(10.0, 95.0))
     with pytest.raises(InputError, match='both targets and distractors'):

@@ -43,11 +43,12 @@ import os
 from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_inplane_argument,
-                                   add_objects_argument, with_inplane_range)
+                                   add_objects_argument, float_pair, with_inplane_range)
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.training.augment import AUGMENT_STYLES
 from bbpose_ros.core.training.device import DEVICES, training_device
 
@@ -77,6 +78,7 @@ def add_parser(subparsers):
     _input_size_option(render)
     _backgrounds_option(render)
     add_inplane_argument(render)
+    _mesh_color_options(render)
     render.set_defaults(func=run_render)
 
     crops = sub.add_parser('render-crops', help='render a Q-Net crop cache')
@@ -98,6 +100,7 @@ def add_parser(subparsers):
     _crop_options(crops)
     _backgrounds_option(crops)
     add_inplane_argument(crops)
+    _mesh_color_options(crops)
     crops.set_defaults(func=run_render_crops)
 
     bop = sub.add_parser('import-bop', help='fill a training cache from annotated BOP images',
@@ -223,6 +226,25 @@ def _backgrounds_option(parser):
     parser.add_argument('--backgrounds', type=Path, nargs='+', default=None, metavar='DIR',
                         help='folders of photographs used as backgrounds 70%% of the time '
                              '(default: procedural backgrounds only)')
+
+
+def _mesh_color_options(parser):
+    """Add the table style's ``--mesh-brightness-range`` and ``--mesh-color-gain-range``."""
+    defaults = TableConfig()
+    parser.add_argument('--mesh-brightness-range', type=float_pair, metavar='LOW,HIGH',
+                        default=defaults.brightness_range,
+                        help="'table' style: per mesh, a brightness gain drawn log-uniformly "
+                             'from this range (default %(default)s: none)')
+    parser.add_argument('--mesh-color-gain-range', type=float_pair, metavar='LOW,HIGH',
+                        default=defaults.color_gain_range,
+                        help="'table' style: per mesh, per-channel colour gains drawn from "
+                             'this range (default %(default)s)')
+
+
+def _table_config(args):
+    """Return the TableConfig of the table-style render options."""
+    return with_inplane_range(TableConfig(brightness_range=args.mesh_brightness_range,
+                                          color_gain_range=args.mesh_color_gain_range), args)
 
 
 def _init(args, kind, objects):
@@ -424,10 +446,8 @@ def run_render(args):
     camera = _cache_camera(args.dataset)
     models = load_bop_models(args.dataset, args.objects)
     if args.scene_style == 'table':
-        from bbpose_ros.core.synth.table_config import TableConfig
         from bbpose_ros.core.synth.table_scenes import TableScenes
-        scenes = TableScenes(models, camera, seed=args.seed,
-                             config=with_inplane_range(TableConfig(), args),
+        scenes = TableScenes(models, camera, seed=args.seed, config=_table_config(args),
                              distractor_models=_other_models(args, models),
                              backgrounds=_photos(args))
     else:
@@ -445,13 +465,12 @@ def run_render_crops(args):
     camera = _cache_camera(args.dataset)
     models = load_bop_models(args.dataset, args.objects)
     if args.scene_style == 'table':
-        from bbpose_ros.core.synth.table_config import TableConfig
         from bbpose_ros.core.synth.table_crops import TableCrops
         if args.scenes is None or args.scenes < 1:
             raise InputError('--scene-style table needs --scenes N (N >= 1): the table scenes '
                              'to render')
         scenes = TableCrops(models, camera, seed=args.seed,
-                            config=with_inplane_range(TableConfig(), args),
+                            config=_table_config(args),
                             distractor_models=_other_models(args, models),
                             backgrounds=_photos(args), crop_size=args.crop_size,
                             context=args.context, box_sigma=args.box_sigma,

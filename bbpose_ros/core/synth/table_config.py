@@ -57,9 +57,13 @@ class TableConfig:
 
     Light: ambient ``ambient_range`` plus ``lights_per_image`` shadow-casting point lights
     of intensity ``light_range``, ``light_height_range`` metres above the table and up to
-    ``light_spread`` metres to the side. Materials: per mesh RGB colour gains, Blinn-Phong
-    highlights of strength ``specular_range`` and exponent ``shininess_range`` (drawn
-    log-uniformly: rough to glossy).
+    ``light_spread`` metres to the side. Materials: per mesh a brightness gain drawn
+    log-uniformly from ``brightness_range`` times RGB colour gains from
+    ``color_gain_range`` (a scanned mesh's colours can be far off the real object's: wide
+    ranges teach shape over colour; with ``brightness_range`` (1, 1) no brightness is
+    drawn, so older seeds render as before), Blinn-Phong highlights of strength
+    ``specular_range`` and exponent ``shininess_range`` (drawn log-uniformly: rough to
+    glossy).
 
     Camera effects: per-channel white-balance gains ``white_balance_range``, a gamma in
     ``gamma_range``, then those of ``effects`` (a ``SynthConfig``: colour jitter, blur,
@@ -85,6 +89,7 @@ class TableConfig:
     light_range: tuple[float, float] = (0.15, 0.5)
     light_height_range: tuple[float, float] = (0.9, 2.0)
     light_spread: float = 1.5
+    brightness_range: tuple[float, float] = (1.0, 1.0)
     color_gain_range: tuple[float, float] = (0.85, 1.15)
     specular_range: tuple[float, float] = (0.0, 0.5)
     shininess_range: tuple[float, float] = (4.0, 128.0)
@@ -112,6 +117,9 @@ class TableConfig:
                 self.camera_elevation_range_deg[1] <= 90:
             raise InputError(f'table config camera_elevation_range_deg must lie in 0..90, '
                              f'got {self.camera_elevation_range_deg}')
+        if not (self.brightness_range[0] > 0.0 and self.color_gain_range[0] >= 0.0):
+            raise InputError(f'table config brightness_range must be > 0 and color_gain_range '
+                             f'>= 0, got {self.brightness_range}, {self.color_gain_range}')
         if self.light_height_range[0] <= self.cluster_radius_range[1] + 0.3:
             raise InputError('table config lights must hang above the shadow sphere: '
                              'light_height_range[0] > cluster radius + 0.3 m')

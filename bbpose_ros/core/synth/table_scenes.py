@@ -211,8 +211,7 @@ class TableScenes:
             translation = rotation_wc @ mesh.translation + translation_wc
             if (self.hulls[mesh.key] @ rotation.T + translation)[:, 2].min() < _MIN_DEPTH:
                 continue
-            draws.append(Draw(mesh.key, rotation, translation,
-                              tuple(rng.uniform(*config.color_gain_range, 3))))
+            draws.append(Draw(mesh.key, rotation, translation, self._color_gains(rng)))
             kept.append(mesh)
         targets = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
         materials = [self._material(rng) for _ in draws]
@@ -277,6 +276,14 @@ class TableScenes:
         position = target + rng.uniform(*config.camera_distance_range) * direction
         return look_at(position, target,
                        np.radians(rng.uniform(*config.inplane_range_deg)))
+
+    def _color_gains(self, rng):
+        """(r, g, b) gains of one mesh's colours: a brightness times per-channel gains."""
+        config = self.config
+        brightness = 1.0
+        if config.brightness_range != (1.0, 1.0):
+            brightness = np.exp(rng.uniform(*np.log(config.brightness_range)))
+        return tuple(brightness * rng.uniform(*config.color_gain_range, 3))
 
     def _material(self, rng):
         low, high = np.log(self.config.shininess_range)
