@@ -391,3 +391,13 @@ def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
     with pytest.raises(InputError, match='network to start from does not fit'):
         train_detector(cache, DetectorConfig(OBJECTS[:4]), settings, tmp_path / 'third', 1,
                        threads=1, progress=False, init=trained)
+
+
+@pytest.mark.parametrize('stage', ['render', 'render-crops'])
+def test_mesh_colour_options_are_refused_outside_table_scenes(tmp_path, lmo_root, capsys,
+                                                               stage):
+    code = main(['train', stage, '--dataset', str(lmo_root), '--cache', str(tmp_path / 'c'),
+                 '--mesh-brightness-range', '0.5,2'])
+    assert code == 2
+    assert 'are for --scene-style table, not random' in capsys.readouterr().err
+    assert not (tmp_path / 'c').exists()

@@ -232,19 +232,29 @@ def _mesh_color_options(parser):
     """Add the table style's ``--mesh-brightness-range`` and ``--mesh-color-gain-range``."""
     defaults = TableConfig()
     parser.add_argument('--mesh-brightness-range', type=float_pair, metavar='LOW,HIGH',
-                        default=defaults.brightness_range,
+                        default=None,
                         help="'table' style: per mesh, a brightness gain drawn log-uniformly "
-                             'from this range (default %(default)s: none)')
+                             f'from this range (default {defaults.brightness_range}: none)')
     parser.add_argument('--mesh-color-gain-range', type=float_pair, metavar='LOW,HIGH',
-                        default=defaults.color_gain_range,
+                        default=None,
                         help="'table' style: per mesh, per-channel colour gains drawn from "
-                             'this range (default %(default)s)')
+                             f'this range (default {defaults.color_gain_range})')
 
 
 def _table_config(args):
     """Return the TableConfig of the table-style render options."""
-    return with_inplane_range(TableConfig(brightness_range=args.mesh_brightness_range,
-                                          color_gain_range=args.mesh_color_gain_range), args)
+    given = {'brightness_range': args.mesh_brightness_range,
+             'color_gain_range': args.mesh_color_gain_range}
+    return with_inplane_range(
+        TableConfig(**{name: value for name, value in given.items() if value is not None}),
+        args)
+
+
+def _refuse_mesh_colors(args):
+    """Raise InputError where the table style's colour options come with another style."""
+    if args.mesh_brightness_range is not None or args.mesh_color_gain_range is not None:
+        raise InputError('--mesh-brightness-range and --mesh-color-gain-range are for '
+                         f'--scene-style table, not {args.scene_style}')
 
 
 def _init(args, kind, objects):
@@ -451,6 +461,7 @@ def run_render(args):
                              distractor_models=_other_models(args, models),
                              backgrounds=_photos(args))
     else:
+        _refuse_mesh_colors(args)
         scenes = SyntheticScenes(models, camera, seed=args.seed,
                                  config=with_inplane_range(SynthConfig(), args),
                                  backgrounds=_photos(args))
@@ -480,6 +491,7 @@ def run_render_crops(args):
         from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
         if args.scenes is not None:
             raise InputError("--scenes is for --scene-style table; 'random' counts --crops")
+        _refuse_mesh_colors(args)
         scenes = CropScenes(models, camera, seed=args.seed,
                             config=with_inplane_range(CROP_SYNTH_CONFIG, args),
                             crop_size=args.crop_size, context=args.context,
