@@ -224,16 +224,28 @@ def test_mesh_brightness_scales_the_colours_and_keeps_the_layout(rendered, lmo_m
     finally:
         bright.close()
     assert [tuple(draw.color_gain) for draw in doubled.draws] == \
-        [(2.0, 2.0, 2.0)] * len(layout.draws)
+        [pytest.approx((2.0, 2.0, 2.0))] * len(layout.draws)
     assert [mesh.key for mesh in doubled.meshes] == [mesh.key for mesh in layout.meshes]
     np.testing.assert_array_equal(doubled.world_to_camera, layout.world_to_camera)
+
+
+def test_default_colours_draw_only_the_channel_gains(table):
+    # Without a brightness range the colours take three draws, as before the option existed,
+    # so the default renders the seeds' scenes unchanged.
+    rng, plain = np.random.default_rng(3), np.random.default_rng(3)
+    assert table._color_gains(rng) == tuple(plain.uniform(*CONFIG.color_gain_range, 3))
+    assert rng.random() == plain.random()
 
 
 def test_bad_config_is_refused(lmo_models):
     with pytest.raises(InputError, match='lights_per_image'):
         TableConfig(lights_per_image=(1, 4))
-    with pytest.raises(InputError, match='brightness_range'):
+    with pytest.raises(InputError, match='brightness_range must be > 0'):
         TableConfig(brightness_range=(0.0, 2.0))
+    with pytest.raises(InputError, match='color_gain_range must be >= 0'):
+        TableConfig(color_gain_range=(-0.1, 1.0))
+    with pytest.raises(InputError, match='brightness_range must be finite'):
+        TableConfig(brightness_range=(1.0, float('inf')))
     with pytest.raises(InputError, match='camera_elevation'):
         replace(CONFIG, camera_elevation_range_deg=(10.0, 95.0))
     with pytest.raises(InputError, match='both targets and distractors'):

@@ -234,11 +234,12 @@ def _mesh_color_options(parser):
     parser.add_argument('--mesh-brightness-range', type=float_pair, metavar='LOW,HIGH',
                         default=None,
                         help="'table' style: per mesh, a brightness gain drawn log-uniformly "
-                             f'from this range (default {defaults.brightness_range}: none)')
+                             'from this range (default %g,%g: no brightness drawn)'
+                             % defaults.brightness_range)
     parser.add_argument('--mesh-color-gain-range', type=float_pair, metavar='LOW,HIGH',
                         default=None,
                         help="'table' style: per mesh, per-channel colour gains drawn from "
-                             f'this range (default {defaults.color_gain_range})')
+                             'this range (default %g,%g)' % defaults.color_gain_range)
 
 
 def _table_config(args):

@@ -23,6 +23,7 @@ spread up to 0.28-0.56 m from their centroid.
 """
 
 from dataclasses import asdict, dataclass, field
+import math
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth.config import SynthConfig
@@ -60,8 +61,8 @@ class TableConfig:
     ``light_spread`` metres to the side. Materials: per mesh a brightness gain drawn
     log-uniformly from ``brightness_range`` times RGB colour gains from
     ``color_gain_range`` (a scanned mesh's colours can be far off the real object's: wide
-    ranges teach shape over colour; with ``brightness_range`` (1, 1) no brightness is
-    drawn, so older seeds render as before), Blinn-Phong highlights of strength
+    ranges teach shape over colour; a fixed range such as the default (1, 1) draws
+    nothing, so older seeds render as before), Blinn-Phong highlights of strength
     ``specular_range`` and exponent ``shininess_range`` (drawn log-uniformly: rough to
     glossy).
 
@@ -100,8 +101,9 @@ class TableConfig:
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if '_range' in name or name.endswith('_per_image'):
-                if len(value) != 2 or not value[0] <= value[1]:
-                    raise InputError(f'table config {name} must be (low, high) with '
+                if len(value) != 2 or not all(map(math.isfinite, value)) or \
+                        not value[0] <= value[1]:
+                    raise InputError(f'table config {name} must be finite (low, high) with '
                                      f'low <= high, got {value}')
             elif name.endswith('_probability') and not 0.0 <= value <= 1.0:
                 raise InputError(f'table config {name} must be in [0, 1], got {value}')
@@ -117,9 +119,13 @@ class TableConfig:
                 self.camera_elevation_range_deg[1] <= 90:
             raise InputError(f'table config camera_elevation_range_deg must lie in 0..90, '
                              f'got {self.camera_elevation_range_deg}')
-        if not (self.brightness_range[0] > 0.0 and self.color_gain_range[0] >= 0.0):
-            raise InputError(f'table config brightness_range must be > 0 and color_gain_range '
-                             f'>= 0, got {self.brightness_range}, {self.color_gain_range}')
+        for name in ('brightness_range', 'shininess_range'):  # drawn log-uniformly
+            if getattr(self, name)[0] <= 0.0:
+                raise InputError(f'table config {name} must be > 0, got '
+                                 f'{getattr(self, name)}')
+        if self.color_gain_range[0] < 0.0:
+            raise InputError(f'table config color_gain_range must be >= 0, got '
+                             f'{self.color_gain_range}')
         if self.light_height_range[0] <= self.cluster_radius_range[1] + 0.3:
             raise InputError('table config lights must hang above the shadow sphere: '
                              'light_height_range[0] > cluster radius + 0.3 m')

@@ -278,17 +278,19 @@ class TableScenes:
                        np.radians(rng.uniform(*config.inplane_range_deg)))
 
     def _color_gains(self, rng):
-        """(r, g, b) gains of one mesh's colours: a brightness times per-channel gains."""
+        """
+        (r, g, b) linear factors on one mesh's 0..1 RGB colours.
+
+        A log-uniform brightness times uniform per-channel gains; a fixed brightness range
+        draws nothing, so the default (1, 1) keeps the random stream of configs without it.
+        """
         config = self.config
-        brightness = 1.0
-        if config.brightness_range != (1.0, 1.0):
-            brightness = np.exp(rng.uniform(*np.log(config.brightness_range)))
+        brightness = _log_uniform(rng, config.brightness_range)
         return tuple(brightness * rng.uniform(*config.color_gain_range, 3))
 
     def _material(self, rng):
-        low, high = np.log(self.config.shininess_range)
         return Material(float(rng.uniform(*self.config.specular_range)),
-                        float(np.exp(rng.uniform(low, high))))
+                        _log_uniform(rng, self.config.shininess_range))
 
     def _lights(self, rng, world_to_camera, radius):
         """Make ambient light and point lights above the table, in the camera frame."""
@@ -343,6 +345,14 @@ def _in_disc(rng, radius):
     """(2,) a point uniform in the disc of ``radius`` about the origin."""
     angle = rng.uniform(0.0, 2.0 * np.pi)
     return radius * np.sqrt(rng.random()) * np.array([np.cos(angle), np.sin(angle)])
+
+
+def _log_uniform(rng, low_high):
+    """Draw a float log-uniformly from ``(low, high)``, both > 0 (``low == high``: no draw)."""
+    low, high = low_high
+    if low == high:
+        return float(low)
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
 
 
 def _to_camera(world_to_camera, point):
