@@ -15,6 +15,8 @@
 
 """The renderer's lit pass: same ground truth as the plain pass, cast shadows, highlights."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -84,6 +86,10 @@ def test_a_light_casts_the_shadow_of_a_mesh_on_the_table(renderer, lmo_models):
     cols = np.nonzero(darker)[1]
     ape_cols = np.nonzero(shaded.instance_ids == 1)[1]
     assert np.median(cols) < np.median(ape_cols)         # ... on the side away from the light
+    unshadowed = replace(light, cast_shadows=False)       # the same light, no shadow
+    np.testing.assert_array_equal(
+        renderer.render_lit(ape, unshadowed, None, [table()]).rgb[table_pixels],
+        empty[table_pixels])
     ambient = lights()                                   # no point light: no shadow
     flat = renderer.render_lit(ape, ambient, None, [table()])
     flat_empty = renderer.render_lit([], ambient, None, [table()])

@@ -229,6 +229,29 @@ def test_mesh_brightness_scales_the_colours_and_keeps_the_layout(rendered, lmo_m
     np.testing.assert_array_equal(doubled.world_to_camera, layout.world_to_camera)
 
 
+def test_scenes_without_shadows_keep_the_layout_and_ground_truth(rendered, lmo_models):
+    sample, layout = rendered[0]
+    unshadowed = TableScenes({name: lmo_models[name] for name in TARGETS}, CAMERA, 5,
+                             replace(CONFIG, shadows=False), {'can': lmo_models['can']})
+    try:
+        flat, flat_layout = unshadowed.sample_with_layout(0)
+    finally:
+        unshadowed.close()
+    # Shadows draw nothing from the random stream: the same scene, ground truth and camera
+    # effects; only the light differs, and taking shadows away only brightens it.
+    assert [mesh.key for mesh in flat_layout.meshes] == [mesh.key for mesh in layout.meshes]
+    np.testing.assert_array_equal(flat_layout.world_to_camera, layout.world_to_camera)
+    assert len(flat.instances) == len(sample.instances)
+    for mine, theirs in zip(flat.instances, sample.instances):
+        assert mine.object_name == theirs.object_name
+        assert mine.visib_fract == theirs.visib_fract
+        np.testing.assert_array_equal(mine.box_uv, theirs.box_uv)
+        np.testing.assert_array_equal(mine.mask, theirs.mask)
+    gain = flat.image_rgb.astype(int) - sample.image_rgb.astype(int)
+    assert gain.mean() > 0.5
+    assert np.mean(gain > 10) > 20 * np.mean(gain < -10)
+
+
 def test_default_colours_draw_only_the_channel_gains(table):
     # Without a brightness range the colours take three draws, as before the option existed,
     # so the default renders the seeds' scenes unchanged.

@@ -78,7 +78,7 @@ def add_parser(subparsers):
     _input_size_option(render)
     _backgrounds_option(render)
     add_inplane_argument(render)
-    _mesh_color_options(render)
+    _table_options(render)
     render.set_defaults(func=run_render)
 
     crops = sub.add_parser('render-crops', help='render a Q-Net crop cache')
@@ -100,7 +100,7 @@ def add_parser(subparsers):
     _crop_options(crops)
     _backgrounds_option(crops)
     add_inplane_argument(crops)
-    _mesh_color_options(crops)
+    _table_options(crops)
     crops.set_defaults(func=run_render_crops)
 
     bop = sub.add_parser('import-bop', help='fill a training cache from annotated BOP images',
@@ -228,8 +228,8 @@ def _backgrounds_option(parser):
                              '(default: procedural backgrounds only)')
 
 
-def _mesh_color_options(parser):
-    """Add the table style's ``--mesh-brightness-range`` and ``--mesh-color-gain-range``."""
+def _table_options(parser):
+    """Add the table style's mesh colour ranges and ``--no-shadows``."""
     defaults = TableConfig()
     parser.add_argument('--mesh-brightness-range', type=float_pair, metavar='LOW,HIGH',
                         default=None,
@@ -240,22 +240,30 @@ def _mesh_color_options(parser):
                         default=None,
                         help="'table' style: per mesh, per-channel colour gains drawn from "
                              'this range (default %g,%g)' % defaults.color_gain_range)
+    parser.add_argument('--no-shadows', action='store_true',
+                        help="'table' style: the lights cast no shadows (the same scenes "
+                             'otherwise: for measuring what shadows are worth)')
 
 
 def _table_config(args):
     """Return the TableConfig of the table-style render options."""
     given = {'brightness_range': args.mesh_brightness_range,
-             'color_gain_range': args.mesh_color_gain_range}
+             'color_gain_range': args.mesh_color_gain_range,
+             'shadows': False if args.no_shadows else None}
     return with_inplane_range(
         TableConfig(**{name: value for name, value in given.items() if value is not None}),
         args)
 
 
-def _refuse_mesh_colors(args):
-    """Raise InputError where the table style's colour options come with another style."""
-    if args.mesh_brightness_range is not None or args.mesh_color_gain_range is not None:
-        raise InputError('--mesh-brightness-range and --mesh-color-gain-range are for '
-                         f'--scene-style table, not {args.scene_style}')
+def _refuse_table_options(args):
+    """Raise InputError where the table style's options come with another style."""
+    given = [option for option, value in (
+        ('--mesh-brightness-range', args.mesh_brightness_range),
+        ('--mesh-color-gain-range', args.mesh_color_gain_range),
+        ('--no-shadows', args.no_shadows or None)) if value is not None]
+    if given:
+        raise InputError(f'{", ".join(given)}: for --scene-style table, not '
+                         f'{args.scene_style}')
 
 
 def _init(args, kind, objects):
@@ -462,7 +470,7 @@ def run_render(args):
                              distractor_models=_other_models(args, models),
                              backgrounds=_photos(args))
     else:
-        _refuse_mesh_colors(args)
+        _refuse_table_options(args)
         scenes = SyntheticScenes(models, camera, seed=args.seed,
                                  config=with_inplane_range(SynthConfig(), args),
                                  backgrounds=_photos(args))
@@ -492,7 +500,7 @@ def run_render_crops(args):
         from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
         if args.scenes is not None:
             raise InputError("--scenes is for --scene-style table; 'random' counts --crops")
-        _refuse_mesh_colors(args)
+        _refuse_table_options(args)
         scenes = CropScenes(models, camera, seed=args.seed,
                             config=with_inplane_range(CROP_SYNTH_CONFIG, args),
                             crop_size=args.crop_size, context=args.context,

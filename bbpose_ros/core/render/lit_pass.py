@@ -73,7 +73,7 @@ class LitPass:
         matrices = [light_matrix(light, lights.shadow_center, lights.shadow_radius)
                     for light in lights.lights]
         textures = [self._texture(slot, plane.texture) for slot, plane in enumerate(planes)]
-        self._shadow_maps(draws, matrices)
+        self._shadow_maps(draws if lights.cast_shadows else (), matrices)
         self.frame.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
@@ -112,7 +112,7 @@ class LitPass:
         return self.rgba.copy(), self.ids.copy()
 
     def _shadow_maps(self, draws, matrices):
-        """Render each light's depth image of the meshes."""
+        """Render each light's depth image of the meshes (none: nothing in shadow)."""
         ctx, program = self.ctx, self.shadow
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.polygon_offset = _SHADOW_OFFSET

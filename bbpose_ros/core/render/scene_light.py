@@ -64,6 +64,8 @@ class SceneLights:
         ambient: (3,) RGB ambient intensity.
         shadow_center: (3,) centre of the sphere the shadow maps cover, camera frame, metres.
         shadow_radius: radius of that sphere, metres; shadows fall only inside it.
+        cast_shadows: whether meshes cast shadows (False: the same diffuse light and
+            highlights, nothing in shadow; for measuring what shadows are worth).
 
     """
 
@@ -71,6 +73,7 @@ class SceneLights:
     ambient: tuple[float, float, float] = (0.5, 0.5, 0.5)
     shadow_center: tuple[float, float, float] = (0.0, 0.0, 1.0)
     shadow_radius: float = 0.5
+    cast_shadows: bool = True
 
 
 @dataclass(frozen=True)

@@ -56,12 +56,13 @@ class TableConfig:
     textured wall behind the cluster ``wall_distance_range`` metres from its centre;
     beyond them a background image.
 
-    Light: ambient ``ambient_range`` plus ``lights_per_image`` shadow-casting point lights
-    of intensity ``light_range``, ``light_height_range`` metres above the table and up to
-    ``light_spread`` metres to the side. Materials: per mesh a brightness gain drawn
-    log-uniformly from ``brightness_range`` times RGB colour gains from
-    ``color_gain_range`` (a scanned mesh's colours can be far off the real object's: wide
-    ranges teach shape over colour; a fixed range such as the default (1, 1) draws
+    Light: ambient ``ambient_range`` plus ``lights_per_image`` point lights of intensity
+    ``light_range``, ``light_height_range`` metres above the table and up to
+    ``light_spread`` metres to the side, casting shadows unless ``shadows`` is False (the
+    same scene otherwise: for measuring what shadows are worth). Materials: per mesh a
+    brightness gain drawn log-uniformly from ``brightness_range`` times RGB colour gains
+    from ``color_gain_range`` (a scanned mesh's colours can be far off the real object's:
+    wide ranges teach shape over colour; a fixed range such as the default (1, 1) draws
     nothing, so older seeds render as before), Blinn-Phong highlights of strength
     ``specular_range`` and exponent ``shininess_range`` (drawn log-uniformly: rough to
     glossy).
@@ -90,6 +91,7 @@ class TableConfig:
     light_range: tuple[float, float] = (0.15, 0.5)
     light_height_range: tuple[float, float] = (0.9, 2.0)
     light_spread: float = 1.5
+    shadows: bool = True
     brightness_range: tuple[float, float] = (1.0, 1.0)
     color_gain_range: tuple[float, float] = (0.85, 1.15)
     specular_range: tuple[float, float] = (0.0, 0.5)

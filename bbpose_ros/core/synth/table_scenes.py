@@ -306,7 +306,8 @@ class TableScenes:
         ambient = rng.uniform(*config.ambient_range) * rng.uniform(0.95, 1.05, 3)
         # The shadow sphere holds the cluster and its tallest meshes.
         center = _to_camera(world_to_camera, np.array([0.0, 0.0, 0.1]))
-        return SceneLights(tuple(lights), tuple(ambient), tuple(center), radius + 0.3)
+        return SceneLights(tuple(lights), tuple(ambient), tuple(center), radius + 0.3,
+                           config.shadows)
 
     def _planes(self, rng, world_to_camera, radius):
         """Make the table, and maybe a wall behind the cluster, in the camera frame."""
