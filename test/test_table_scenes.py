@@ -229,14 +229,19 @@ def test_mesh_brightness_scales_the_colours_and_keeps_the_layout(rendered, lmo_m
     np.testing.assert_array_equal(doubled.world_to_camera, layout.world_to_camera)
 
 
+def _first_sample(lmo_models, config):
+    """Render sample 0 of the ``table`` fixture's scenes under another ``config``."""
+    scenes = TableScenes({name: lmo_models[name] for name in TARGETS}, CAMERA, 5, config,
+                         {'can': lmo_models['can']})
+    try:
+        return scenes.sample_with_layout(0)
+    finally:
+        scenes.close()
+
+
 def test_scenes_without_shadows_keep_the_layout_and_ground_truth(rendered, lmo_models):
     sample, layout = rendered[0]
-    unshadowed = TableScenes({name: lmo_models[name] for name in TARGETS}, CAMERA, 5,
-                             replace(CONFIG, shadows=False), {'can': lmo_models['can']})
-    try:
-        flat, flat_layout = unshadowed.sample_with_layout(0)
-    finally:
-        unshadowed.close()
+    flat, flat_layout = _first_sample(lmo_models, replace(CONFIG, shadows=False))
     # Shadows draw nothing from the random stream: the same scene, ground truth and camera
     # effects; only the light differs, and taking shadows away only brightens it.
     assert [mesh.key for mesh in flat_layout.meshes] == [mesh.key for mesh in layout.meshes]
@@ -250,6 +255,29 @@ def test_scenes_without_shadows_keep_the_layout_and_ground_truth(rendered, lmo_m
     gain = flat.image_rgb.astype(int) - sample.image_rgb.astype(int)
     assert gain.mean() > 0.5
     assert np.mean(gain > 10) > 20 * np.mean(gain < -10)
+
+
+def test_scenes_without_clutter_keep_the_targets_and_the_room(rendered, lmo_models):
+    sample, layout = rendered[0]
+    bare, bare_layout = _first_sample(lmo_models, replace(CONFIG, clutter=False))
+    # The clutter is drawn, then left out: the same targets, poses and camera, the same
+    # amodal boxes, each target at least as visible as among the clutter.
+    targets = [mesh for mesh in layout.meshes if mesh.key.startswith('target/')]
+    assert len(targets) < len(layout.meshes)
+    assert [mesh.key for mesh in bare_layout.meshes] == [mesh.key for mesh in targets]
+    for mine, theirs in zip(bare_layout.meshes, targets):
+        np.testing.assert_array_equal(mine.translation, theirs.translation)
+    np.testing.assert_array_equal(bare_layout.world_to_camera, layout.world_to_camera)
+    cluttered = {instance.object_name: instance for instance in sample.instances}
+    assert set(cluttered) <= {instance.object_name for instance in bare.instances}
+    for instance in bare.instances:
+        if instance.object_name in cluttered:
+            theirs = cluttered[instance.object_name]
+            np.testing.assert_allclose(instance.box_uv, theirs.box_uv)
+            assert instance.visib_fract >= theirs.visib_fract - 1e-6
+    # The room is drawn from the same stream: most pixels are unchanged or nearly so.
+    change = np.abs(bare.image_rgb.astype(int) - sample.image_rgb.astype(int)).max(axis=2)
+    assert 0.05 < np.mean(change > 20) < 0.6
 
 
 def test_default_colours_draw_only_the_channel_gains(table):

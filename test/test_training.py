@@ -396,8 +396,9 @@ def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
 @pytest.mark.parametrize('stage', ['render', 'render-crops'])
 def test_table_options_are_refused_outside_table_scenes(tmp_path, lmo_root, capsys, stage):
     code = main(['train', stage, '--dataset', str(lmo_root), '--cache', str(tmp_path / 'c'),
-                 '--mesh-brightness-range', '0.5,2', '--no-shadows'])
+                 '--mesh-brightness-range', '0.5,2', '--no-shadows', '--no-clutter'])
     assert code == 2
-    assert '--mesh-brightness-range, --no-shadows: for --scene-style table, not random' in \
+    assert ('--mesh-brightness-range, --no-shadows, --no-clutter: for --scene-style table, '
+            'not random') in \
         capsys.readouterr().err
     assert not (tmp_path / 'c').exists()

@@ -229,7 +229,7 @@ def _backgrounds_option(parser):
 
 
 def _table_options(parser):
-    """Add the table style's mesh colour ranges and ``--no-shadows``."""
+    """Add the table style's mesh colour ranges, ``--no-shadows`` and ``--no-clutter``."""
     defaults = TableConfig()
     parser.add_argument('--mesh-brightness-range', type=float_pair, metavar='LOW,HIGH',
                         default=None,
@@ -243,13 +243,18 @@ def _table_options(parser):
     parser.add_argument('--no-shadows', action='store_true',
                         help="'table' style: the lights cast no shadows (the same scenes "
                              'otherwise: for measuring what shadows are worth)')
+    parser.add_argument('--no-clutter', action='store_true',
+                        help="'table' style: the clutter is drawn, then left out of the "
+                             'image (the same scenes otherwise: for measuring what clutter '
+                             'is worth)')
 
 
 def _table_config(args):
     """Return the TableConfig of the table-style render options."""
     given = {'brightness_range': args.mesh_brightness_range,
              'color_gain_range': args.mesh_color_gain_range,
-             'shadows': False if args.no_shadows else None}
+             'shadows': False if args.no_shadows else None,
+             'clutter': False if args.no_clutter else None}
     return with_inplane_range(
         TableConfig(**{name: value for name, value in given.items() if value is not None}),
         args)
@@ -260,7 +265,8 @@ def _refuse_table_options(args):
     given = [option for option, value in (
         ('--mesh-brightness-range', args.mesh_brightness_range),
         ('--mesh-color-gain-range', args.mesh_color_gain_range),
-        ('--no-shadows', args.no_shadows or None)) if value is not None]
+        ('--no-shadows', args.no_shadows or None),
+        ('--no-clutter', args.no_clutter or None)) if value is not None]
     if given:
         raise InputError(f'{", ".join(given)}: for --scene-style table, not '
                          f'{args.scene_style}')

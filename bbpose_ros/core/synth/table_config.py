@@ -44,7 +44,9 @@ class TableConfig:
     ``cluster_radius_range`` metres (grown where it is full), in random order (the
     defaults give about LM-O's histogram of visible fractions); a mesh stands upright (its
     model z axis up, as the LM-O objects stand) with ``upright_probability``, else in one
-    of its stable poses, turned about the vertical at random.
+    of its stable poses, turned about the vertical at random. With ``clutter`` False the
+    clutter is drawn and then left out of the image (the same scene otherwise: for
+    measuring what clutter is worth).
 
     Camera: it looks at a point of the cluster (within ``look_offset`` x its radius of the
     centre) from ``camera_distance_range`` metres, ``camera_elevation_range_deg`` above the
@@ -74,6 +76,7 @@ class TableConfig:
 
     targets_per_image: tuple[int, int] = (6, 8)
     clutter_per_image: tuple[int, int] = (10, 18)
+    clutter: bool = True
     cluster_radius_range: tuple[float, float] = (0.12, 0.25)
     upright_probability: float = 0.8
     shape_count: int = 24
