@@ -140,23 +140,17 @@ weights: setup photos
 	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
 		--scene-style table --seed 21 --scenes 3000 --input-size 480,352 \
 		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
-		--extra-cache $(CACHE)/scenes480_upright4 --run-dir $(CACHE)/runs/detector_table_ft \
-		--init $(CACHE)/runs/detector_lite0_480.pt --augment strong --lr 5e-4 \
-		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 1000 --every 250 \
-		--threads 1 --seed 7 --export $(CACHE)/runs/detector_table21.pt \
-		--export-input-size 416,304
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_22 \
-		--scene-style table --seed 22 --scenes 3000 --input-size 480,352 \
-		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_23 \
 		--scene-style table --seed 23 --scenes 1500 --input-size 480,352 \
 		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
-	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_table_22 \
-		--extra-cache $(CACHE)/scenes_table_23 $(CACHE)/scenes480_upright4 \
-		--run-dir $(CACHE)/runs/detector_table2_ft --init $(CACHE)/runs/detector_table21.pt \
-		--augment strong --lr 3e-4 --backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 \
-		--steps 500 --every 250 --threads 1 --seed 8 --export bbpose_ros/weights/detector.pt \
+	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_44_noclutter \
+		--scene-style table --no-clutter --seed 44 --scenes 1500 --input-size 480,352 \
+		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
+	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_table_44_noclutter \
+		--run-dir $(CACHE)/runs/detector_table_noclutter \
+		--init $(CACHE)/runs/detector_lite0_480.pt --augment strong --lr 5e-4 \
+		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 1000 --every 250 \
+		--threads 1 --seed 7 --export bbpose_ros/weights/detector.pt \
 		--export-input-size 480,352
 	$(BIN)/bbpose train quantize --network detector --weights bbpose_ros/weights/detector.pt \
 		--cache $(CACHE)/scenes_table_23

@@ -141,9 +141,12 @@ def quantize_network(weights: Path | str, network_kind: str,
         int8_path = Path(folder, 'int8.onnx')
         with _root_log_level(logging.ERROR):
             # It warns, with the whole type, that the uint8 and int64 inputs are not quantised.
+            # 7-bit weights (reduce_range): x86 CPUs without VNNI multiply u8 x s8 pairs into
+            # saturating int16 sums (VPMADDUBSW), which full-range weights overflow.
             quantize_static(str(prepared_path), str(int8_path), Reader(),
                             quant_format=QuantFormat.QOperator, per_channel=True,
-                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                            reduce_range=True, activation_type=QuantType.QUInt8,
+                            weight_type=QuantType.QInt8,
                             calibrate_method=CalibrationMethod.MinMax)
         model = onnx.load(str(int8_path))
     meta = {'kind': int8_kind(network_kind), 'format': INT8_FORMAT,
