@@ -213,11 +213,13 @@ class TableScenes:
                 continue
             draws.append(Draw(mesh.key, rotation, translation, self._color_gains(rng)))
             kept.append(mesh)
+        targets = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
         materials = [self._material(rng) for _ in draws]
         if not config.clutter:
             # Drawn, then left out: the same scene otherwise (the random stream is kept).
-            draws, kept, materials = _targets_only(draws, kept, materials)
-        targets = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
+            draws, kept, materials = ([items[i] for i in targets]
+                                      for items in (draws, kept, materials))
+            targets = list(range(len(targets)))
         lights = self._lights(rng, world_to_camera, radius)
         planes = self._planes(rng, world_to_camera, radius)
         rendered = self.renderer.render_lit(draws, lights, materials, planes, targets)
@@ -343,13 +345,6 @@ class TableScenes:
 
     def _texture(self, rng):
         return random_background(rng, _TEXTURE_SIZE, _TEXTURE_SIZE, self.backgrounds)
-
-
-def _targets_only(draws, kept, materials):
-    """Return ``draws, kept, materials`` (parallel lists) without the clutter meshes."""
-    chosen = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
-    return ([draws[i] for i in chosen], [kept[i] for i in chosen],
-            [materials[i] for i in chosen])
 
 
 def _in_disc(rng, radius):
