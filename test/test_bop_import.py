@@ -31,7 +31,7 @@ import torch
 from bbpose_ros.cli.main import main
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.pipeline.weights import load_network
+from bbpose_ros.core.inference.weights import load_network
 from bbpose_ros.core.synth import SyntheticScenes
 from bbpose_ros.core.synth.crop_scenes import CropScenes
 from bbpose_ros.core.training import cache as scene_cache

@@ -29,8 +29,8 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, CameraModel, Rectifier
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline
-from bbpose_ros.core.pipeline.options import PipelineOptions
 
 # Distortions of the kind a calibration gives, several to tens of pixels at the corners.
 DISTORTIONS = {

@@ -27,12 +27,12 @@ from bbpose_ros.core.geometry.dense_grid import cell_centres_uv, model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
+from bbpose_ros.core.inference.backends import make_runner
+from bbpose_ros.core.inference.weights import DEFAULT_DENSE_WEIGHTS, load_network, save_weights
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
-from bbpose_ros.core.pipeline.backends import make_runner
 from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.poses import Detection
-from bbpose_ros.core.pipeline.weights import DEFAULT_DENSE_WEIGHTS, load_network, save_weights
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.crop_scenes import CropScenes
 from bbpose_ros.core.synth.dense_targets import dense_targets

@@ -20,10 +20,10 @@ import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.backends import inference_network, make_runner
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.pipeline.backends import inference_network, make_runner
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator

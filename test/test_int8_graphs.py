@@ -22,15 +22,15 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
+from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
+                                                   read_int8_graph)
+from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.inference.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
+                                               load_network)
 from bbpose_ros.core.pipeline import loader
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
-from bbpose_ros.core.pipeline.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
-                                                  read_int8_graph)
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
-from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
-                                              load_network)
 from bbpose_ros.core.training.quantization import calibration_images, quantize_network
 
 SHIPPED_INT8 = int8_graph_path(DEFAULT_DETECTOR_WEIGHTS)

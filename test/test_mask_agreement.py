@@ -19,11 +19,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
 from bbpose_ros.core.pipeline.loader import load_pipeline
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models

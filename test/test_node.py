@@ -41,8 +41,8 @@ from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 

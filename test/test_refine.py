@@ -25,10 +25,10 @@ from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_pnp import DensePose
 from bbpose_ros.core.geometry.rotations import exp_so3, perturb_pose, rotation_error_deg
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.pipeline.correspondences import DenseMaps
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner

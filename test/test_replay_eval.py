@@ -26,8 +26,8 @@ from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.video import read_video
 
 FRAMES = 3

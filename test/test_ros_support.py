@@ -30,10 +30,10 @@ from rclpy.executors import SingleThreadedExecutor
 import torch
 
 from bbpose_ros.core.data.models import LMO_OBJECTS
+from bbpose_ros.core.inference.weights import DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS
+from bbpose_ros.core.inference.weights import save_weights
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.pipeline.weights import DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS
-from bbpose_ros.core.pipeline.weights import save_weights
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 60.0   # bound of every wait; a healthy run takes a fraction of it

@@ -33,7 +33,7 @@ import yaml
 from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
-from bbpose_ros.core.pipeline.options import PipelineOptions
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.tracking import TrackingConfig
 from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker

@@ -24,9 +24,9 @@ import pytest
 
 from bbpose_ros.core.eval.detection import evaluate_detections
 from bbpose_ros.core.eval.evaluation import evaluate
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline.loader import load_pipeline
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import FrameResult
 
 FRAMES = 12

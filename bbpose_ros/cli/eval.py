@@ -24,8 +24,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.pipeline.options import (DENSE_MASKS, DENSE_TRANSLATIONS,
-                                              PipelineOptions, POSE_SOURCES, PRECISIONS)
+from bbpose_ros.core.inference.options import (DENSE_MASKS, DENSE_TRANSLATIONS,
+                                               PipelineOptions, POSE_SOURCES, PRECISIONS)
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
 

@@ -276,7 +276,7 @@ def _init(args, kind, objects):
     """Load the trained network of ``--init`` (checked: kind, objects), or return None."""
     if args.init is None:
         return None
-    from bbpose_ros.core.pipeline.weights import load_network
+    from bbpose_ros.core.inference.weights import load_network
     return load_network(args.init, kind, list(objects))
 
 
@@ -581,7 +581,7 @@ def run_verifier(args):
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.runs import train_verifier, with_verifier
     from bbpose_ros.core.training.verifier_training import VerifierTrainSettings
-    from bbpose_ros.core.pipeline.weights import load_network
+    from bbpose_ros.core.inference.weights import load_network
     if args.candidates < 1:
         raise InputError(f'--candidates must be at least 1, got {args.candidates}')
     if args.crop_size < 8 or args.crop_size % 8:
@@ -678,9 +678,9 @@ def run_quantize(args):
     import shlex
     import sys
 
-    from bbpose_ros.core.pipeline.int8_graphs import int8_graph_path
-    from bbpose_ros.core.pipeline.weights import (DEFAULT_DETECTOR_WEIGHTS,
-                                                  DEFAULT_QNET_WEIGHTS, load_network)
+    from bbpose_ros.core.inference.int8_graphs import int8_graph_path
+    from bbpose_ros.core.inference.weights import (DEFAULT_DETECTOR_WEIGHTS,
+                                                   DEFAULT_QNET_WEIGHTS, load_network)
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training import quantization
     count = args.inputs or (32 if args.network == 'detector' else 256)
@@ -724,7 +724,7 @@ def _seconds(args):
 
 
 def _measured_sigma(path):
-    from bbpose_ros.core.pipeline.weights import read_weights
+    from bbpose_ros.core.inference.weights import read_weights
     metadata, _ = read_weights(path, 'detector')
     sigma = metadata.get('training', {}).get('validation', {}).get('side_sigma')
     if not sigma:

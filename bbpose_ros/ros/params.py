@@ -48,7 +48,7 @@ import yaml
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.options import check_option, option_range, PipelineOptions
+from bbpose_ros.core.inference.options import check_option, option_range, PipelineOptions
 from bbpose_ros.core.pipeline.tracking import TrackingConfig
 
 if TYPE_CHECKING:

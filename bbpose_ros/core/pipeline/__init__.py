@@ -13,4 +13,4 @@
 # limitations under the License.
 
 
-"""The run-time pose pipeline: its stages, the network backends and the shipped weights."""
+"""The run-time pose pipeline: its stages, image -> detections -> rotations -> poses."""

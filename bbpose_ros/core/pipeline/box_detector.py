@@ -27,10 +27,10 @@ import cv2
 import numpy as np
 import torch
 
+from bbpose_ros.core.inference.backends import make_runner, OnnxRuntimeRunner
+from bbpose_ros.core.inference.int8_graphs import with_peak_search
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, peak_boxes, PeakOutputs
-from bbpose_ros.core.pipeline.backends import make_runner, OnnxRuntimeRunner
-from bbpose_ros.core.pipeline.int8_graphs import with_peak_search
 from bbpose_ros.core.pipeline.poses import Detection
 
 

@@ -35,9 +35,9 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import DensePose, pose_from_dense_maps
+from bbpose_ros.core.inference.backends import make_runner
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.dense import DenseNet
-from bbpose_ros.core.pipeline.backends import make_runner
 from bbpose_ros.core.pipeline.poses import Detection
 
 

@@ -30,18 +30,18 @@ from typing import TYPE_CHECKING
 import torch
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
+                                                   read_int8_graph)
+from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.inference.weights import (DEFAULT_DENSE_WEIGHTS, DEFAULT_DETECTOR_WEIGHTS,
+                                               DEFAULT_QNET_WEIGHTS, load_network)
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
-from bbpose_ros.core.pipeline.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
-                                                  read_int8_graph)
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
-from bbpose_ros.core.pipeline.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
-from bbpose_ros.core.pipeline.weights import (DEFAULT_DENSE_WEIGHTS, DEFAULT_DETECTOR_WEIGHTS,
-                                              DEFAULT_QNET_WEIGHTS, load_network)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 
 if TYPE_CHECKING:

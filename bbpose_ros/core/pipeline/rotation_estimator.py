@@ -34,9 +34,9 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
+from bbpose_ros.core.inference.backends import make_runner, OnnxRuntimeRunner
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.qnet import HypothesisOutputs, QNet
-from bbpose_ros.core.pipeline.backends import make_runner, OnnxRuntimeRunner
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 
 

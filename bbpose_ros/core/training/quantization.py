@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Quantise a trained detector or Q-Net to the int8 graph ``pipeline.int8_graphs`` runs.
+Quantise a trained detector or Q-Net to the int8 graph ``inference.int8_graphs`` runs.
 
 ONNX Runtime's static quantisation: int8 weights per output channel, uint8 activations whose
 ranges (min / max) are measured on calibration inputs, in the QOperator format (QLinearConv
@@ -32,11 +32,11 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.backends import export_onnx
-from bbpose_ros.core.pipeline.int8_graphs import (file_sha256, INPUT_NAMES, INT8_FORMAT,
-                                                  int8_kind, OUTPUT_NAMES)
+from bbpose_ros.core.inference.backends import export_onnx
+from bbpose_ros.core.inference.int8_graphs import (file_sha256, INPUT_NAMES, INT8_FORMAT,
+                                                   int8_kind, OUTPUT_NAMES)
+from bbpose_ros.core.inference.weights import load_network
 from bbpose_ros.core.pipeline.rotation_estimator import run_network
-from bbpose_ros.core.pipeline.weights import load_network
 
 # Q-Net calibration crops: boxes jittered as a detector's (per-side error / box size, as
 # Q-Net trains), fed in batches of this size.

@@ -35,11 +35,11 @@ from bbpose_ros.core.eval.detection import score_detections
 from bbpose_ros.core.eval.evaluation import score_instance, summarize_objects
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
+from bbpose_ros.core.inference.backends import TorchRunner
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet
 from bbpose_ros.core.nets.qnet import QNet
-from bbpose_ros.core.pipeline.backends import TorchRunner
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator

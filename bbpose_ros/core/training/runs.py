@@ -17,7 +17,7 @@ Training runs of Q-Net, the detector and the dense net: build, train, checkpoint
 
 Each run folder gets ``checkpoint.pt`` (resumable), ``log.csv``, ``train.log``, ``loss.png``
 and the exported weight file (``qnet.pt`` / ``detector.pt`` / ``dense.pt``, with metadata, see
-``core.pipeline.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere
+``core.inference.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere
 too. The detector's second stage trains in a run of its own and is exported with its first
 stage in one ``detector.pt``.
 """
@@ -36,11 +36,11 @@ import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.inference.weights import save_weights
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0, load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.pipeline.weights import save_weights
 from bbpose_ros.core.training.dense_training import (dense_step, dense_validation,
                                                      DenseBatches, DenseTrainSettings,
                                                      freeze_early_blocks)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.backends import BACKENDS
+from bbpose_ros.core.inference.backends import BACKENDS
 from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.refine.refiner import RefinerConfig
 

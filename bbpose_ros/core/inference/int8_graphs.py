@@ -40,8 +40,8 @@ import torch
 from torch import nn
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.backends import export_module
 from bbpose_ros.core.nets.detector import DetectorConfig, peaks
-from bbpose_ros.core.pipeline.backends import export_module
 
 INT8_FORMAT = '1'
 INPUT_NAMES = {'detector': ('images',), 'qnet': ('crops', 'object_index')}
