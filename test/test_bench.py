@@ -33,7 +33,7 @@ def bench(tmp_path, lmo_root, *args):
     out = tmp_path / 'bench.json'
     result = subprocess.run(
         [sys.executable, '-m', 'bbpose_ros.cli.main', 'bench', '--dataset', lmo_root,
-         '--frames', '2', '--warmup', '1', '--threads', '1', '--json', out,
+         '--frames', '2', '--warmup', '1', '--inference-threads', '1', '--json', out,
          '--param', f'detector_weights:={detector}', '--param', f'qnet_weights:={qnet}',
          *args],
         capture_output=True, text=True, timeout=300, cwd=REPO_ROOT, env=dict(os.environ))

@@ -168,8 +168,8 @@ def test_redistorted_frames_give_the_poses_of_the_originals(redistorted, lmo_mod
     frames, originals, images = redistorted
     # The float networks: the int8 graphs answer the resampling itself with larger pose
     # changes (docs/experiments.md), which would blur what this test checks.
-    pipeline = load_pipeline(lmo_models, PipelineOptions(refine=False, threads=1,
-                                                         precision='fp32'))
+    pipeline = load_pipeline(lmo_models, PipelineOptions(refine=False, inference_threads=1,
+                                                         inference_precision='fp32'))
     k = frames[0].camera.k
     rectify = camera_model(info(k, d=DISTORTIONS[name], model=name), 640, 480)
     ignore = camera_model(info(k), 640, 480)              # the distortion left in

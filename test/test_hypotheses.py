@@ -20,9 +20,12 @@ from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.hypotheses import box_misfit, farthest_points, HypothesisSelector
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
+
+SHIPPED = PipelineOptions()
 
 # Decoys: the true rotation turned 90 deg about the model's x, y or z axis, or 180 about x.
 DECOY_TURNS = Rotation.from_rotvec(np.pi / 2 * np.eye(3)).as_matrix()
@@ -44,7 +47,7 @@ def real_hypotheses(frames, models):
 
 
 def test_the_box_picks_out_the_true_rotation_among_turned_ones(lmo_frames, lmo_models):
-    selector = HypothesisSelector(lmo_models)
+    selector = HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)
     right = []
     for frame, detections, hypotheses in real_hypotheses(lmo_frames, lmo_models):
         chosen = selector(frame.camera, detections, hypotheses)
@@ -65,12 +68,13 @@ def test_zero_weight_keeps_the_likeliest_hypothesis(lmo_frames, lmo_models):
 
 def test_pipeline_chooses_a_hypothesis_before_the_translation(lmo_frames, lmo_models):
     frame, detections, hypotheses = next(real_hypotheses(lmo_frames, lmo_models))
-    pipeline = PosePipeline(lmo_models, rotation_estimator=lambda *args: hypotheses)
+    pipeline = PosePipeline(lmo_models, PipelineOptions(refine=False),
+                            rotation_estimator=lambda *args: hypotheses)
     result = pipeline.estimate(frame.load_image(), frame.camera, detections)
     assert 'hypothesis_selection' in result.timings_ms
     chosen = np.stack([pose.rotation for pose in result.poses])
     np.testing.assert_array_equal(
-        chosen, HypothesisSelector(lmo_models)(frame.camera, detections, hypotheses))
+        chosen, HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(frame.camera, detections, hypotheses))
 
 
 def test_box_misfit_is_the_largest_residual_over_the_longest_side():
@@ -90,12 +94,12 @@ def test_farthest_points_spread_over_the_set(lmo_models):
 
 
 @pytest.mark.parametrize('weight', [-1.0, float('nan')])
-def test_bad_weight_is_refused(lmo_models, weight):
-    with pytest.raises(InputError, match='box_consistency_weight must be >= 0'):
-        HypothesisSelector(lmo_models, weight=weight)
+def test_bad_weight_is_refused(weight):
+    with pytest.raises(InputError, match='box_consistency_weight: .* out of range'):
+        PipelineOptions(box_consistency_weight=weight)
 
 
 def test_hypotheses_must_match_the_detections(lmo_frames, lmo_models):
     frame, detections, hypotheses = next(real_hypotheses(lmo_frames, lmo_models))
     with pytest.raises(InputError, match=f'for {len(detections) - 1} detections'):
-        HypothesisSelector(lmo_models)(frame.camera, detections[1:], hypotheses)
+        HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(frame.camera, detections[1:], hypotheses)

@@ -94,14 +94,17 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
     assert loader.int8_graph(auto, shipped, 'detector') is not None
     assert loader.int8_graph(auto, DEFAULT_QNET_WEIGHTS, 'qnet') is not None
     with pytest.raises(InputError, match='not found'):
-        loader.int8_graph(PipelineOptions(precision='int8'), weights, 'detector')
-    assert loader.int8_graph(PipelineOptions(backend='torch'), shipped, 'detector') is None
-    assert loader.int8_graph(PipelineOptions(precision='fp32'), shipped, 'detector') is None
+        loader.int8_graph(PipelineOptions(inference_precision='int8'), weights, 'detector')
+    torch_backend = PipelineOptions(inference_backend='torch')
+    assert loader.int8_graph(torch_backend, shipped, 'detector') is None
+    fp32 = PipelineOptions(inference_precision='fp32')
+    assert loader.int8_graph(fp32, shipped, 'detector') is None
     monkeypatch.setattr(loader, 'cpu_has_int8_dot', lambda: False)
     assert loader.int8_graph(auto, shipped, 'detector') is None
-    assert loader.int8_graph(PipelineOptions(precision='int8'), shipped, 'detector') is not None
-    with pytest.raises(InputError, match='precision / backend'):
-        PipelineOptions(precision='int8', backend='torch')
+    int8 = PipelineOptions(inference_precision='int8')
+    assert loader.int8_graph(int8, shipped, 'detector') is not None
+    with pytest.raises(InputError, match='inference_precision / inference_backend'):
+        PipelineOptions(inference_precision='int8', inference_backend='torch')
 
 
 def test_int8_finds_what_fp32_finds_on_real_frames(network, lmo_frames):

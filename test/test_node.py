@@ -42,7 +42,7 @@ from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 
@@ -152,7 +152,8 @@ def test_every_bag_frame_answered_like_the_offline_pipeline(graph, bag, lmo_mode
 
     frames = read_bag_frames(bag)
     # The node's defaults (refinement of each detection's best hypotheses), score 0.
-    pipeline = load_pipeline(lmo_models, PipelineOptions(score_threshold=0.0), *weights)
+    pipeline = load_pipeline(lmo_models, PipelineOptions(score_threshold=0.0),
+                             WeightFiles(*weights))
     poses = {name: client.received[f'{OUT}/{name}/pose'] for name in LMO_OBJECTS}
     for frame in frames:
         expected = pipeline.estimate(frame.image_rgb, frame.camera).poses

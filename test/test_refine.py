@@ -31,7 +31,7 @@ from bbpose_ros.core.pipeline.correspondences import DenseMaps
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
-from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.pipeline.refinement import PoseRefiner, refiner_config
 from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
@@ -238,7 +238,8 @@ def test_pipeline_refines_and_rejects_by_score(viewpoint_models, lmo_models, lmo
     truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.5]
     detections = [Detection(i.object_name, 1.0, i.box_uv) for i in truths]
     rotations = np.stack([i.rotation for i in truths])
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, refiner=PoseRefiner(models))
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, PipelineOptions(),
+                            refiner=PoseRefiner(models))
     result = pipeline.estimate(image, frame.camera, detections, rotations)
     assert 'refinement' in result.timings_ms
     assert len(result.poses) == len(truths)
@@ -451,8 +452,8 @@ def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, l
         by_name = {i.object_name: i.rotation for i in truths}
         return np.stack([by_name[d.object_name] for d in detections])
 
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, detector, rotations,
-                            refiner=PoseRefiner(models))
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, PipelineOptions(), detector,
+                            rotations, refiner=PoseRefiner(models))
     tracker = PoseTracker(pipeline, TrackingConfig(redetect_every=3, min_track_score=0.3))
     first = tracker.estimate(image, frame.camera)
     assert len(calls) == 1 and 'detector' in first.timings_ms
@@ -478,15 +479,16 @@ def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, l
     tracker.reset()
     assert tracker.tracks == {}
     with pytest.raises(InputError, match='PoseRefiner'):
-        PoseTracker(PosePipeline(pipeline.models, detector, rotations))
+        PoseTracker(PosePipeline(pipeline.models, PipelineOptions(refine=False), detector,
+                                 rotations), tracker.config)
 
 
 def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, lmo_frames):
     models, _ = viewpoint_models
     frame = lmo_frames[0]
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, lambda image: [],
-                            lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models),
-                            candidates=2)
+    pipeline = PosePipeline({n: lmo_models[n] for n in models},
+                            PipelineOptions(refine_hypotheses=2), lambda image: [],
+                            lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models))
     assert pipeline.estimate(frame.load_image(), frame.camera).poses == []
     assert PoseRefiner(models)(frame.load_image(), frame.camera, []) == []
 
@@ -521,7 +523,9 @@ def test_pnp_poses_are_candidates_and_say_so(viewpoint_models, lmo_models, lmo_f
     detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances
                   if i.object_name in objects]
     oracle = TruthCorrespondences(frame, objects)
-    plain = PosePipeline(objects, correspondences=oracle)
+    plain = PosePipeline(objects, PipelineOptions(refine=False, pose_source='dense',
+                                                  dense_translation='pnp'),
+                         correspondences=oracle)
     result = plain.estimate(frame.load_image(), frame.camera, detections)
     assert [p.source for p in result.poses] == ['pnp'] * len(detections)
     assert 'correspondences' in result.timings_ms
@@ -531,8 +535,10 @@ def test_pnp_poses_are_candidates_and_say_so(viewpoint_models, lmo_models, lmo_f
     # Refined with the masks of the truth, right poses stay right (5 cm / 5 deg; a
     # silhouette holds out-of-plane rotation loosely); the equation's translation from PnP's
     # rotation is a second candidate.
-    refined = PosePipeline(objects, refiner=PoseRefiner({n: models[n] for n in objects}),
-                           correspondences=oracle, dense_translation='both').estimate(
+    options = PipelineOptions(pose_source='dense', dense_translation='both',
+                              dense_mask='amodal')
+    refined = PosePipeline(objects, options, refiner=PoseRefiner({n: models[n] for n in objects}),
+                           correspondences=oracle).estimate(
         frame.load_image(), frame.camera, detections)
     assert {p.source for p in refined.poses} <= {'pnp', 'pnp_rotation'}
     for pose in refined.poses:
@@ -550,7 +556,7 @@ def test_the_start_prior_holds_what_the_lines_hardly_constrain(viewpoint_models,
             [t.rotation for t in truths], [t.translation for t in truths])
     free = dataclasses.replace(RefinerConfig(), prior_rotation_deg=0.0,
                                prior_translation_m=0.0, keep_better_start=False)
-    held = dataclasses.replace(PipelineOptions(refine_prior_deg=0.02).refiner_config,
+    held = dataclasses.replace(refiner_config(PipelineOptions(refine_prior_deg=0.02)),
                                keep_better_start=False)
     moved, kept = refine_poses(*args, free), refine_poses(*args, held)
     turned = [rotation_error_deg(r.rotation, t.rotation) for r, t in zip(moved, truths)]

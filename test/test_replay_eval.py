@@ -27,7 +27,7 @@ from vision_msgs.msg import Detection3DArray
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.video import read_video
 
 FRAMES = 3
@@ -63,7 +63,7 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert 'tracking on: ADD(-S)' in result.stdout
 
     offline = evaluate(frames, load_pipeline(lmo_models, PipelineOptions(score_threshold=0.0),
-                                             *weights),
+                                             WeightFiles(*weights)),
                        boxes='detector', rotation='estimator', progress=False)
     for name, values in offline['objects'].items():
         for key in ('n', 'detected', 'add_s_recall', 'cm5deg5', 'proj5px'):

@@ -25,7 +25,6 @@ import pytest
 from bbpose_ros.core.eval.detection import evaluate_detections
 from bbpose_ros.core.eval.evaluation import evaluate
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
 from bbpose_ros.core.pipeline.loader import load_pipeline
 from bbpose_ros.core.pipeline.poses import FrameResult
 
@@ -40,13 +39,13 @@ ROTATION_MEDIAN_CEILING_DEG = 60.0
 
 @pytest.fixture(scope='module')
 def pipeline(lmo_models):
-    return load_pipeline(lmo_models, PipelineOptions(refine=False, threads=2))
+    return load_pipeline(lmo_models, PipelineOptions(refine=False, inference_threads=2))
 
 
 def test_hypotheses_are_chosen_by_the_box_unless_the_weight_is_zero(pipeline, lmo_models):
     assert pipeline.rotation_estimator.all_hypotheses
-    assert pipeline.hypothesis_selector.weight == DEFAULT_BOX_CONSISTENCY_WEIGHT
-    plain = load_pipeline(lmo_models, PipelineOptions(refine=False, threads=2,
+    assert pipeline.hypothesis_selector.weight == PipelineOptions().box_consistency_weight
+    plain = load_pipeline(lmo_models, PipelineOptions(refine=False, inference_threads=2,
                                                       box_consistency_weight=0.0))
     assert not plain.rotation_estimator.all_hypotheses
 
@@ -72,8 +71,8 @@ def test_rotation_error_floor_with_ground_truth_boxes(pipeline, lmo_frames):
 
 
 def test_the_shipped_dense_net_gives_candidates_and_masks(lmo_models, lmo_frames):
-    pipeline = load_pipeline(lmo_models, PipelineOptions(threads=2, pose_source='dense+qnet',
-                                                         dense_mask='amodal'))
+    options = PipelineOptions(inference_threads=2, pose_source='dense+qnet', dense_mask='amodal')
+    pipeline = load_pipeline(lmo_models, options)
     frame = lmo_frames[0]
     result = pipeline.estimate(frame.load_image(), frame.camera)
     assert result.poses and 'correspondences' in result.timings_ms

@@ -16,10 +16,10 @@
 ``bbpose bench``: the speed of the pipeline stage by stage, or through the ROS graph.
 
 Both modes take the node's parameters (``--params``, default config/bbpose.yaml, and
-``--param``); ``--dataset``, ``--objects``, ``--threads`` and ``--score-threshold`` become
-overrides of ``dataset_dir``, ``objects``, ``inference_threads`` and ``score_threshold``, so
-the stage benchmark builds the very pipeline the node would, and ``--graph`` starts the node
-with them.
+``--param``); ``--dataset``, ``--objects`` and the pipeline settings' options (generated
+from ``options.SETTINGS``, e.g. ``--inference-threads``, ``--score-threshold``) become
+overrides of the parameters of the same names, so the stage benchmark builds the very
+pipeline the node would, and ``--graph`` starts the node with them.
 """
 
 import os
@@ -30,12 +30,14 @@ from std_msgs.msg import Header
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
+from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
 from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.node_pipeline import build_node_pipeline
@@ -60,12 +62,6 @@ def add_parser(subparsers):
                         help='use the first N frames of the dataset (default: all)')
     parser.add_argument('--warmup', type=int, default=10,
                         help='untimed frames before timing (default %(default)s)')
-    parser.add_argument('--threads', type=int, default=None,
-                        help='inference threads (node parameter inference_threads; 0: one per '
-                             'core; default: the parameters file)')
-    parser.add_argument('--score-threshold', type=float, default=None,
-                        help='detector score threshold (default: the parameters file); 0 '
-                             'makes the detector report every object')
     parser.add_argument('--graph', action='store_true',
                         help='measure through the ROS graph with a running node')
     parser.add_argument('--rate', type=float, default=30.0,
@@ -79,6 +75,8 @@ def add_parser(subparsers):
     parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='override one node parameter (repeatable)')
     parser.add_argument('--json', type=Path, default=None, help='write the report here')
+    # Unset, each takes the parameters file's value.
+    add_settings_arguments(parser, SETTINGS, defaults={})
     parser.set_defaults(func=run)
 
 
@@ -87,10 +85,8 @@ def node_overrides(args):
     overrides = [f'dataset_dir:={args.dataset.resolve()}']
     if args.objects:
         overrides.append(f'objects:=[{",".join(args.objects)}]')
-    if args.threads is not None:
-        overrides.append(f'inference_threads:={args.threads}')
-    if args.score_threshold is not None:
-        overrides.append(f'score_threshold:={float(args.score_threshold)}')
+    overrides += [f'{name}:={value!r}' if isinstance(value, str) else f'{name}:={value}'
+                  for name, value in settings_of(args, SETTINGS).items()]
     return overrides + list(args.param)
 
 
@@ -108,10 +104,10 @@ def bench_frames(frames, values, warmup):
         lambda poses: conversions.frame_messages(header, poses, built.markers),
         warmup=warmup)
     options = config.options
-    report.update(inference_backend=options.backend,
+    report.update(inference_backend=options.inference_backend,
                   detector_network=pipeline.detector.precision,
                   qnet_network=getattr(pipeline.rotation_estimator, 'precision', None),
-                  inference_threads=options.threads or os.cpu_count(),
+                  inference_threads=options.inference_threads or os.cpu_count(),
                   refine_hypotheses=options.refine_hypotheses if options.refine else 0)
     return report
 

@@ -14,19 +14,19 @@
 
 """``bbpose eval``: score the pipeline on a BOP dataset folder and write the report JSON."""
 
-import argparse
+import dataclasses
 from pathlib import Path
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
                                    add_objects_argument, float_pair)
+from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.inference.options import (DENSE_MASKS, DENSE_TRANSLATIONS,
-                                               PipelineOptions, POSE_SOURCES, PRECISIONS)
-from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.inference.options import SETTINGS
+from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
 
 
 def add_parser(subparsers):
@@ -47,7 +47,8 @@ def add_parser(subparsers):
                         help='detector weight file (default: the shipped one)')
     parser.add_argument('--qnet-weights', type=Path, default=None,
                         help='Q-Net weight file (default: the shipped one)')
-    add_pipeline_arguments(parser)
+    parser.add_argument('--dense-weights', type=Path, default=None,
+                        help='dense net weight file (default: the shipped one)')
     parser.add_argument('--perturb-gt', type=float_pair, action='append', default=None,
                         metavar='DEG,MM',
                         help='with --boxes gt --rotation gt: start each pose from the ground '
@@ -67,106 +68,21 @@ def add_parser(subparsers):
                         help='write charts into this folder: recall curves, per-object '
                              'recalls, errors by visible fraction, what a minimum confidence '
                              'keeps')
+    add_settings_arguments(parser, EVAL_SETTINGS)
     parser.set_defaults(func=run)
 
 
-def add_pipeline_arguments(parser):
-    """Add the PipelineOptions that an evaluation varies, with their defaults."""
-    defaults = PipelineOptions()
-    parser.add_argument('--box-consistency-weight', type=float,
-                        default=defaults.box_consistency_weight,
-                        help='how much the Bounding Box Equation misfit counts in choosing '
-                             'among Q-Net hypotheses; 0: the best-scored one '
-                             '(default %(default)s)')
-    parser.add_argument('--mask-consistency-weight', type=float,
-                        default=defaults.mask_consistency_weight,
-                        help="how much each Q-Net hypothesis' silhouette agreement (soft IoU) "
-                             "with the dense net's amodal mask counts in ranking them; 0: "
-                             'none (default %(default)s)')
-    parser.add_argument('--refine', action=argparse.BooleanOptionalAction,
-                        default=defaults.refine,
-                        help='refine each pose by aligning the silhouette with the image '
-                             '(default: %(default)s)')
-    parser.add_argument('--refine-min-score', type=float, default=defaults.refine_min_score,
-                        help='drop refined poses scored below this, 0..1 (default %(default)s)')
-    parser.add_argument('--refine-hypotheses', type=int, default=defaults.refine_hypotheses,
-                        help="refine each detection's K best-ranked rotation hypotheses and "
-                             'keep the best-scored (default %(default)s)')
-    parser.add_argument('--refine-prior-deg', type=float, default=defaults.refine_prior_deg,
-                        help="standard deviation of a prior around each start's rotation, "
-                             'degrees: the refinement moves a start less the smaller it is; '
-                             '0: none (default %(default)s)')
-    parser.add_argument('--refine-prior-mm', type=float, default=defaults.refine_prior_mm,
-                        help="the same for the start's translation, millimetres "
-                             '(default %(default)s)')
-    parser.add_argument('--refine-occlusions', action=argparse.BooleanOptionalAction,
-                        default=defaults.refine_occlusions,
-                        help="let the poses of a frame hide each other's contour where one "
-                             'is nearer the camera (default: %(default)s)')
-    parser.add_argument('--refine-mask-choice-weight', type=float,
-                        default=defaults.refine_mask_choice_weight,
-                        help="where the dense net runs, how much each refined candidate's "
-                             'silhouette agreement with its amodal mask counts beside the '
-                             'refinement score in choosing; 0: the score alone '
-                             '(default %(default)s)')
-    parser.add_argument('--pose-source', choices=POSE_SOURCES, default=defaults.pose_source,
-                        help='candidate poses from Q-Net + the Bounding Box Equation (qnet, '
-                             'the paper), PnP over the dense correspondences (dense), or both '
-                             '(default %(default)s)')
-    parser.add_argument('--dense-translation', choices=DENSE_TRANSLATIONS,
-                        default=defaults.dense_translation,
-                        help="dense poses' translation: PnP's, the Bounding Box Equation's "
-                             "from PnP's rotation, or both candidates (default %(default)s)")
-    parser.add_argument('--dense-mask', choices=DENSE_MASKS, default=defaults.dense_mask,
-                        help="the refiner's foreground model: the dense net's amodal or "
-                             'visible mask, or none (colours) (default %(default)s)')
-    parser.add_argument('--dense-weights', type=Path, default=None,
-                        help='dense net weight file (default: the shipped one)')
-    parser.add_argument('--inference-precision', choices=PRECISIONS, default=defaults.precision,
-                        help='the detector and Q-Net: fp32, their int8 graphs, or auto (int8 '
-                             'on a CPU with int8 dot products) (default %(default)s)')
-
-
-def pipeline_options(args):
-    """Return the PipelineOptions of ``add_pipeline_arguments``' options (InputError if bad)."""
-    try:
-        return PipelineOptions(box_consistency_weight=args.box_consistency_weight,
-                               mask_consistency_weight=args.mask_consistency_weight,
-                               refine=args.refine, refine_min_score=args.refine_min_score,
-                               refine_hypotheses=args.refine_hypotheses,
-                               refine_prior_deg=args.refine_prior_deg,
-                               refine_prior_mm=args.refine_prior_mm,
-                               refine_occlusions=args.refine_occlusions,
-                               refine_mask_choice_weight=args.refine_mask_choice_weight,
-                               pose_source=args.pose_source,
-                               dense_translation=args.dense_translation,
-                               dense_mask=args.dense_mask,
-                               precision=args.inference_precision)
-    except InputError as err:
-        option, _, reason = str(err).partition(': ')
-        raise InputError(f'--{option.replace("_", "-")}: {reason}') from err
+# Every setting but tracking, which follows poses from frame to frame of a camera stream.
+EVAL_SETTINGS = tuple(name for name in SETTINGS if not name.startswith('tracking'))
 
 
 def build_pipeline(models, args):
-    """Build a pipeline with learned stages only where the ground truth does not replace them."""
-    options = pipeline_options(args)
-    if args.boxes == 'gt' and args.rotation == 'gt':
-        refiner = correspondences = None
-        if options.refine:
-            from bbpose_ros.core.pipeline.refinement import load_pose_refiner
-            refiner = load_pose_refiner(
-                models, options.refiner_config, min_score=options.refine_min_score,
-                mask_choice_weight=options.refine_mask_choice_weight)
-        # The dense net runs for the refiner's foreground mask or its choice by the mask.
-        if options.refine and (options.dense_mask != 'none' or (
-                options.runs_dense and options.refine_mask_choice_weight > 0.0)):
-            from bbpose_ros.core.pipeline.loader import load_correspondences
-            correspondences = load_correspondences(models, options, args.dense_weights)
-        return PosePipeline(models, refiner=refiner, correspondences=correspondences,
-                            dense_poses=False, dense_mask=options.dense_mask)
-    from bbpose_ros.core.pipeline.loader import load_pipeline
-    return load_pipeline(models, options, args.detector_weights, args.qnet_weights,
-                         dense_weights=args.dense_weights)
+    """Build the pipeline of the options; the stages the ground truth replaces are not loaded."""
+    options = options_of(args, EVAL_SETTINGS)
+    return load_pipeline(models, options,
+                         WeightFiles(args.detector_weights, args.qnet_weights,
+                                     args.dense_weights),
+                         StagesGiven(boxes=args.boxes == 'gt', rotations=args.rotation == 'gt'))
 
 
 class RecordingDetector:
@@ -228,19 +144,8 @@ def run(args):
                         'rotation': args.rotation, 'min_visib': args.min_visib,
                         'detector_weights': _weights_name(args.detector_weights),
                         'qnet_weights': _weights_name(args.qnet_weights),
-                        'box_consistency_weight': args.box_consistency_weight,
-                        'mask_consistency_weight': args.mask_consistency_weight,
-                        'refine': args.refine, 'refine_min_score': args.refine_min_score,
-                        'refine_hypotheses': args.refine_hypotheses,
-                        'refine_prior_deg': args.refine_prior_deg,
-                        'refine_prior_mm': args.refine_prior_mm,
-                        'refine_occlusions': args.refine_occlusions,
-                        'refine_mask_choice_weight': args.refine_mask_choice_weight,
-                        'pose_source': args.pose_source,
-                        'dense_translation': args.dense_translation,
-                        'dense_mask': args.dense_mask,
                         'dense_weights': _weights_name(args.dense_weights),
-                        'inference_precision': args.inference_precision,
+                        **dataclasses.asdict(pipeline.options),
                         'detector_network': getattr(pipeline.detector, 'precision', None),
                         'qnet_network': getattr(pipeline.rotation_estimator, 'precision',
                                                 None),

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros.conversions import MarkerArrayBuilder
@@ -54,7 +54,7 @@ def build_node_pipeline(config: NodeConfig,
 
     ``log`` gets a line naming what runs the detector and Q-Net (fp32 or int8) and one for each
     viewpoint model the refiner builds (once per mesh, then cached). With ``tracking`` the
-    pipeline is a PoseTracker around the PosePipeline.
+    pipeline is a PoseTracker around the PosePipeline (``load_pipeline``).
 
     Raises InputError naming the parameters behind a failure (unknown objects, a weight
     file that does not fit).
@@ -65,18 +65,15 @@ def build_node_pipeline(config: NodeConfig,
         raise InputError(f'parameter objects / dataset_dir: loading the objects from '
                          f'{config.dataset_dir}: {err}') from err
     try:
-        pipeline = load_pipeline(models, config.options, config.detector_weights,
-                                 config.qnet_weights, refiner_log=log,
-                                 dense_weights=config.dense_weights)
+        pipeline = load_pipeline(models, config.options, WeightFiles(
+            config.detector_weights, config.qnet_weights, config.dense_weights), log=log)
     except InputError as err:
         raise InputError(f'parameters detector_weights / qnet_weights / dense_weights (empty: '
                          f'the shipped files): {err}') from err
     if log is not None:
-        qnet = getattr(pipeline.rotation_estimator, 'precision', 'not used')
-        dense = getattr(pipeline.correspondences, 'precision', 'not used')
-        log(f'networks: detector {pipeline.detector.precision}, Q-Net {qnet}, dense net '
-            f'{dense} (inference_precision {config.options.precision})')
-    tracking = config.tracking_config()
-    if tracking is not None:
-        pipeline = PoseTracker(pipeline, tracking)
+        stages = getattr(pipeline, 'pipeline', pipeline)      # inside a PoseTracker
+        qnet = getattr(stages.rotation_estimator, 'precision', 'not used')
+        dense = getattr(stages.correspondences, 'precision', 'not used')
+        log(f'networks: detector {stages.detector.precision}, Q-Net {qnet}, dense net '
+            f'{dense} (inference_precision {config.options.inference_precision})')
     return NodePipeline(pipeline, MarkerArrayBuilder(models), DetectionsBuilder(models))

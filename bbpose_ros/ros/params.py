@@ -23,12 +23,13 @@ Each parameter says when the node reads it (``ParameterSpec.applies``):
   while the node keeps serving with the pipeline it has, and swaps it in when built;
 * ``frame``: read for every frame; settable at any time.
 
-A parameter that sets a field of ``PipelineOptions`` (``ParameterSpec.option``) takes its
-default, range and check from there, so the node, ``bbpose eval`` and ``bbpose bench``
-share them; the tracking parameters take theirs from ``TrackingConfig``. A value is checked
-by ``check_value`` (type, then the option's or the parameter's own check), both when the
-configure transition reads it and when it is set at run time, so a new parameter is one
-table entry. ``config/bbpose.yaml`` documents each one.
+Every setting of ``PipelineOptions`` is a parameter of the same name, its descriptor
+generated from the setting's declaration (``options.SETTINGS``: type, default, range,
+description), so the node, ``bbpose eval`` and ``bbpose bench`` share them; its value is
+checked by making the PipelineOptions (``NodeConfig.updated`` / ``read_config``). The
+node's own parameters (topics, QoS, TF, files) are declared in the table below and checked
+by ``check_value``. ``config/bbpose.yaml`` documents each one, with these defaults (a test
+holds them equal).
 """
 
 from __future__ import annotations
@@ -48,8 +49,7 @@ import yaml
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.inference.options import check_option, option_range, PipelineOptions
-from bbpose_ros.core.pipeline.tracking import TrackingConfig
+from bbpose_ros.core.inference.options import PipelineOptions, Setting, SETTINGS
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -71,7 +71,7 @@ class ParameterSpec:
         applies: when the node reads it, one of APPLIES.
         value_range: (from, to), inclusive, for the descriptor and the check.
         check: raises InputError saying what is wrong with a value of the right type.
-        option: the PipelineOptions field it sets (see ``option_spec``), or None.
+        option: whether it is a setting of PipelineOptions (checked by making one).
 
     """
 
@@ -80,7 +80,7 @@ class ParameterSpec:
     applies: str
     value_range: tuple[float, float] | None = None
     check: Callable[[Any], None] | None = field(default=None, compare=False)
-    option: str | None = None
+    option: bool = False
 
     @property
     def descriptor(self) -> ParameterDescriptor:
@@ -97,14 +97,20 @@ class ParameterSpec:
         return descriptor
 
 
-def option_spec(option: str, description: str, applies: str = 'pipeline') -> ParameterSpec:
-    """Make the ParameterSpec of PipelineOptions field ``option``: its default, range, check."""
-    return ParameterSpec(getattr(_DEFAULT_OPTIONS, option), description, applies,
-                         value_range=option_range(option), option=option)
+# The settings the configure transition reads (what runs the networks); the others shape
+# the pipeline and may be set while the node runs.
+CONFIGURE_SETTINGS = ('inference_backend', 'inference_precision', 'device',
+                      'inference_threads')
+# Where the node's default differs from the pipeline's: one inference thread leaves the
+# other core of a 2-core robot to DDS, the executor and the camera driver.
+NODE_DEFAULTS = {'inference_threads': 1}
 
 
-_DEFAULT_OPTIONS = PipelineOptions()
-_DEFAULT_TRACKING = TrackingConfig()
+def setting_spec(setting: Setting) -> ParameterSpec:
+    """Make the ParameterSpec of a PipelineOptions setting, from its declaration."""
+    return ParameterSpec(NODE_DEFAULTS.get(setting.name, setting.default), setting.description,
+                         'configure' if setting.name in CONFIGURE_SETTINGS else 'pipeline',
+                         value_range=setting.limits, option=True)
 
 
 def _one_of(choices):
@@ -165,78 +171,7 @@ PARAMETERS = {
     'dense_weights': ParameterSpec(
         '', 'Dense correspondence net weights file (.pt), read when pose_source or dense_mask '
         'uses it; empty: bbpose_ros/weights/dense.pt.', 'configure', check=_check_weights_file),
-    'score_threshold': option_spec(
-        'score_threshold', 'Detections scoring below this (0..1) are ignored.'),
-    'max_instances': option_spec(
-        'max_instances', 'Most instances reported per object and frame.'),
-    'box_consistency_weight': option_spec(
-        'box_consistency_weight', 'With a multi-hypothesis Q-Net, how much the Bounding Box '
-        'Equation misfit (largest side residual / longest box side) counts against the '
-        'log-probability in choosing a rotation; 0: the best-scored one.'),
-    'mask_consistency_weight': option_spec(
-        'mask_consistency_weight', "With a multi-hypothesis Q-Net, how much each hypothesis' "
-        "silhouette agreement (soft IoU, 0..1) with the dense net's amodal mask counts in "
-        'ranking them; 0: none. Above 0 the dense net runs on every detection.'),
-    'refine': option_spec(
-        'refine', 'Refine each pose by aligning the mesh silhouette with the image '
-        '(region-based, no learning); its score becomes the pose confidence.'),
-    'refine_hypotheses': option_spec(
-        'refine_hypotheses', "How many of each detection's best-ranked rotation hypotheses "
-        'are refined; the best-scored is kept (cost grows with it).'),
-    'refine_min_score': option_spec(
-        'refine_min_score', 'Refined poses scoring below this (0..1: share of contour lines '
-        'that agree with the image) are dropped; 0 keeps all.'),
-    'refine_prior_deg': option_spec(
-        'refine_prior_deg', "Standard deviation of a prior around each refinement start's "
-        'rotation, degrees: the smaller, the less a start moves (drift on weak evidence and '
-        'far corrections alike); 0: none.'),
-    'refine_prior_mm': option_spec(
-        'refine_prior_mm', "The same for the start's translation, millimetres; 0: none."),
-    'refine_threads': option_spec(
-        'refine_threads', "Threads the refinement's per-line loops run on, split by pose; 0: "
-        'one per core.'),
-    'refine_occlusions': option_spec(
-        'refine_occlusions', "The poses of a frame hide each other's contour lines where one "
-        'is nearer the camera (the image shows the occluder there).'),
-    'refine_mask_choice_weight': option_spec(
-        'refine_mask_choice_weight', 'Where the dense net runs, how much each refined '
-        "candidate's silhouette agreement (soft IoU, 0..1) with its amodal mask counts beside "
-        "the refinement score in choosing a detection's pose; 0: the score alone."),
-    'pose_source': option_spec(
-        'pose_source', "Where each detection's candidate poses come from: qnet (Q-Net + the "
-        'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '
-        'dense+qnet.'),
-    'dense_translation': option_spec(
-        'dense_translation', "With the dense net: the PnP pose's translation (pnp), the "
-        "Bounding Box Equation's from PnP's rotation (bbox_equation), or both candidates."),
-    'dense_mask': option_spec(
-        'dense_mask', "With refine: the refiner's foreground model, the dense net's predicted "
-        'amodal or visible mask, or none (the colours).'),
-    'tracking': ParameterSpec(
-        False, 'Start each refined object from its pose in the previous frame and run the '
-        'detector and Q-Net only when needed (needs refine).', 'pipeline'),
-    'tracking_redetect_every': ParameterSpec(
-        _DEFAULT_TRACKING.redetect_every, 'With tracking, run the detector and Q-Net at least '
-        'every this many frames, so new objects are found.', 'pipeline',
-        value_range=(1, 1000)),
-    'tracking_min_score': ParameterSpec(
-        _DEFAULT_TRACKING.min_track_score, 'With tracking, a track whose refinement scores '
-        'below this (0..1) is lost.', 'pipeline', value_range=(0.0, 1.0)),
-    'inference_backend': option_spec(
-        'backend', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
-        'configure'),
-    'inference_precision': option_spec(
-        'precision', 'What the detector and Q-Net run as: fp32, int8 (the int8 graph '
-        '<weights stem>_int8.onnx beside each weight file; onnxruntime only) or auto (int8 on '
-        'a CPU with int8 dot-product instructions where those graphs exist, else fp32).',
-        'configure'),
-    'device': option_spec(
-        'device', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
-        'backend).', 'configure'),
-    'inference_threads': option_spec(
-        'threads', 'CPU (intra-op) threads of the inference backend; 0: its default (one per '
-        'core); 1: a single thread, leaving the other cores to DDS and the executor.',
-        'configure'),
+    **{name: setting_spec(setting) for name, setting in SETTINGS.items()},
     'qos_reliability': ParameterSpec(
         'reliable', 'Reliability of the image and camera_info subscriptions: reliable or '
         'best_effort.', 'configure', check=_one_of(RELIABILITY)),
@@ -266,12 +201,6 @@ PARAMETERS = {
 }
 
 
-# The ``pipeline`` parameters that wrap the pipeline in a PoseTracker: parameter name ->
-# TrackingConfig field (None: the switch itself).
-TRACKING_OPTIONS = {'tracking': None, 'tracking_redetect_every': 'redetect_every',
-                    'tracking_min_score': 'min_track_score'}
-
-
 @dataclass(frozen=True)
 class NodeConfig:
     """
@@ -283,7 +212,7 @@ class NodeConfig:
         detector_weights, qnet_weights, dense_weights: the weight files; None where the
             shipped one applies.
         qos: the input subscriptions' QoS (``qos_reliability``, ``qos_depth``).
-        options: the PipelineOptions of the parameters that set one of its fields.
+        options: the PipelineOptions of the settings' parameters.
 
     """
 
@@ -300,14 +229,6 @@ class NodeConfig:
         """Return the names of the objects to report."""
         return tuple(self.values['objects'])
 
-    def tracking_config(self) -> TrackingConfig | None:
-        """Return the TrackingConfig of the ``tracking`` parameters, None when it is off."""
-        if not self.values['tracking']:
-            return None
-        return TrackingConfig(**{option: self.values[name]
-                                 for name, option in TRACKING_OPTIONS.items()
-                                 if option is not None})
-
     def updated(self, changes: dict[str, Any]) -> NodeConfig:
         """Return this config with ``changes`` ({name: value}, ``pipeline`` ones) applied."""
         values = {**self.values, **changes}
@@ -318,21 +239,15 @@ def checked_options(values: dict[str, Any]) -> PipelineOptions:
     """
     Return the PipelineOptions of parameter ``values`` ({name: value}, every parameter).
 
-    The values one by one are ``check_value``'s; this checks their combinations and raises
-    InputError naming the parameters of one that does not go together.
+    Making it checks each setting's value and their combinations (once); raises
+    InputError 'parameter(s) <name(s)>: reason' for the first that is wrong.
     """
-    if values['tracking'] and not values['refine']:
-        raise InputError('parameters tracking / refine: tracking follows refined poses; set '
-                         'refine true or tracking false')
-    fields = {spec.option: values[name] for name, spec in PARAMETERS.items()
-              if spec.option is not None}
     try:
-        return PipelineOptions(**fields)
-    except InputError as err:      # 'field / field: reason', named here by parameter
-        head, _, reason = str(err).partition(': ')
-        parameter = {spec.option: name for name, spec in PARAMETERS.items() if spec.option}
-        names = ' / '.join(parameter.get(option, option) for option in head.split(' / '))
-        raise InputError(f'parameters {names}: {reason}') from err
+        return PipelineOptions(**{name: values[name] for name in SETTINGS})
+    except InputError as err:      # 'name: reason' or 'name / name: reason'
+        names, _, reason = str(err).partition(': ')
+        plural = 's' if ' / ' in names else ''
+        raise InputError(f'parameter{plural} {names}: {reason}') from err
 
 
 def declare_parameters(node: Node) -> None:
@@ -347,18 +262,20 @@ def declare_parameters(node: Node) -> None:
 
 
 def check_value(name: str, value: Any) -> None:
-    """Raise InputError naming parameter ``name`` when ``value`` is not one it takes."""
+    """
+    Raise InputError naming parameter ``name`` when ``value`` is not one it takes.
+
+    Every parameter's type is checked here (as rclpy types it: ``1`` is no double); the
+    value of a setting of PipelineOptions is checked when its options are made
+    (``checked_options``), so only the node's own parameters get their range and check here.
+    """
     spec = PARAMETERS[name]
     expected = Parameter.Type.from_parameter_value(spec.default)
     # An empty list has no element type; the parameter's own check judges it.
     if value != [] and Parameter.Type.from_parameter_value(value) != expected:
         raise InputError(f'parameter {name}: {value!r} is not of type '
                          f'{expected.name.lower()}')
-    if spec.option is not None:
-        try:
-            check_option(spec.option, value)
-        except InputError as err:
-            raise InputError(f'parameter {name}: {str(err).partition(": ")[2]}') from err
+    if spec.option:
         return
     limits = spec.value_range
     if limits is not None and not limits[0] <= value <= limits[1]:

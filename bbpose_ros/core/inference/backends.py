@@ -37,9 +37,8 @@ from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.options import BACKENDS
 from bbpose_ros.core.nets.images import ImageInput
-
-BACKENDS = ('onnxruntime', 'torch')
 
 
 def inference_network(network: nn.Module, device: str | torch.device = 'cpu') -> nn.Module:

@@ -13,13 +13,18 @@
 # limitations under the License.
 
 """
-``PipelineOptions``: every setting of the run-time pipeline, its default and its check.
+``PipelineOptions``: every setting of the run-time pipeline, declared once.
 
-The one place that states them: ``loader.load_pipeline`` builds the pipeline from a
-PipelineOptions, the node's parameter table takes its defaults and ranges from here, and
-``bbpose eval`` / ``bbpose bench`` fill one from their options. A value is checked once,
-by ``check_option`` (which construction runs for every field), so the node refuses a
-run-time parameter set with the same message that a bad command-line option gets.
+Each field is one setting, under one name from the node's parameters file to the stage
+that reads it: its type, default (the shipped value), range or choices and a one-line
+description live here and nowhere else. The node's parameter descriptors
+(``ros/params.py``), the ``bbpose eval`` / ``bbpose bench`` options (``cli/common.py``)
+are generated from ``SETTINGS``, and a test holds config/bbpose.yaml's values equal to
+these defaults. A PipelineOptions checks itself when it is made (``check_option`` for
+each field, then the combinations), so a value is checked once, wherever it comes from.
+
+A leaf module: it imports nothing but the errors, so the parameter table and the
+command-line parsers load without torch or numba.
 """
 
 from __future__ import annotations
@@ -28,108 +33,122 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.inference.backends import BACKENDS
-from bbpose_ros.core.pipeline.hypotheses import DEFAULT_BOX_CONSISTENCY_WEIGHT
-from bbpose_ros.core.refine.refiner import RefinerConfig
 
 
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')
 DENSE_TRANSLATIONS = ('pnp', 'bbox_equation', 'both')
 DENSE_MASKS = ('amodal', 'visible', 'none')
+BACKENDS = ('onnxruntime', 'torch')
 PRECISIONS = ('auto', 'fp32', 'int8')
 
 
-def _option(default: Any, low: float | None = None, high: float | None = None,
-            choices: tuple[str, ...] | None = None) -> Any:
-    """Make a dataclass field with its inclusive range or its choices as metadata."""
-    return field(default=default, metadata={'range': None if low is None else (low, high),
-                                            'choices': choices})
+def _setting(default: Any, description: str, low: float | None = None,
+             high: float | None = None, choices: tuple[str, ...] | None = None) -> Any:
+    """Make a dataclass field with its description and inclusive range or choices."""
+    return field(default=default, metadata={
+        'description': description, 'range': None if low is None else (low, high),
+        'choices': choices})
 
 
 @dataclass(frozen=True)
 class PipelineOptions:
     """
-    Settings of the pipeline built by ``load_pipeline``; the defaults are the shipped ones.
+    Settings of the pipeline built by ``pipeline.loader.load_pipeline``; defaults shipped.
 
-    Attributes:
-        score_threshold: lowest detector score reported, 0..1.
-        max_instances: most detections per object and frame.
-        box_consistency_weight: with a multi-hypothesis Q-Net, how much the Bounding Box
-            Equation's misfit counts in choosing a rotation (``hypotheses``); 0: the
-            network's best-scored one.
-        mask_consistency_weight: with a multi-hypothesis Q-Net, how much the agreement of
-            each hypothesis' silhouette with the dense net's amodal mask counts in ranking
-            them (soft IoU 0..1 times this, ``hypotheses``); 0: no mask term. Above 0 the
-            dense net runs on every detection.
-        refine: add the region-based refinement stage (``refinement.PoseRefiner``).
-        refine_hypotheses: with refinement, how many of each detection's best-ranked
-            rotation hypotheses are solved and refined (the best-scored is kept); each costs
-            the screening iterations (accuracy by their number: docs/refinement.md).
-        refine_min_score: with refinement, poses scored below this (0..1) are dropped.
-        refine_prior_deg: with refinement, the standard deviation of a prior around each
-            start's rotation, degrees; 0: none (``RefinerConfig.prior_rotation_deg``).
-        refine_prior_mm: the same for the start's translation, millimetres; 0: none.
-        refine_threads: threads the refinement's per-line loops run on; 0: one per core.
-        refine_occlusions: the poses refined together hide each other's contour where one
-            is nearer the camera (``RefinerConfig.model_occlusions``).
-        refine_mask_choice_weight: where the dense net runs, how much each refined
-            candidate's silhouette agreement (soft IoU 0..1) with its amodal mask counts
-            beside the refinement score in choosing a detection's pose
-            (``PoseRefiner.mask_choice_weight``); 0: the score alone. It does not make the
-            dense net run.
-        pose_source: where each detection's candidate poses come from: 'qnet' (Q-Net's
-            hypotheses + the Bounding Box Equation, the paper's path), 'dense' (PnP over
-            the dense net's correspondences, with PnP's or the equation's translation per
-            ``dense_translation``), 'dense+qnet' (both; the refiner, or else the PnP pose
-            when found, picks).
-        dense_translation: 'pnp' or 'bbox_equation' (PnP's rotation, the equation's
-            translation from the detector's box) or 'both' (two candidates).
-        dense_mask: the predicted mask the refiner's region modality takes as the object's
-            foreground: 'amodal', 'visible' or 'none' (the colours alone). The dense net
-            runs when its poses are candidates or its mask is used.
-        backend: what runs the networks, one of ``backends.BACKENDS``.
-        precision: what the detector and Q-Net run as: 'fp32' (the float networks), 'int8'
-            (the int8 graph beside each weight file, ``int8_graphs``; onnxruntime only) or
-            'auto' (each network's int8 graph where the CPU has int8 dot-product
-            instructions and a graph of those weights exists, else fp32).
-        device: torch device, 'cpu', 'cuda' or 'cuda:N' (onnxruntime runs on the CPU only).
-        threads: intra-op threads of the backend; 0: its default (one per core).
+    Each field's description is in its declaration below (``SETTINGS`` lists them with
+    their types, ranges and choices). Units: millimetres and degrees where a name says so,
+    scores and weights unitless.
 
     Raises:
-        InputError: 'field: reason' (or 'field / field: reason') for the first value, or
+        InputError: 'name: reason' (or 'name / name: reason') for the first value, or
             combination, it does not take.
 
     """
 
-    score_threshold: float = _option(0.3, 0.0, 1.0)
-    max_instances: int = _option(1, 1, 100)
-    box_consistency_weight: float = _option(DEFAULT_BOX_CONSISTENCY_WEIGHT, 0.0, 1000.0)
-    mask_consistency_weight: float = _option(0.0, 0.0, 1000.0)
-    refine: bool = _option(True)
-    refine_hypotheses: int = _option(3, 1, 8)
-    refine_min_score: float = _option(0.0, 0.0, 1.0)
-    refine_prior_deg: float = _option(0.0, 0.0, 180.0)
-    refine_prior_mm: float = _option(0.0, 0.0, 1000.0)
-    refine_threads: int = _option(0, 0, 256)
-    refine_occlusions: bool = _option(True)
-    refine_mask_choice_weight: float = _option(8.0, 0.0, 1000.0)
-    pose_source: str = _option('qnet', choices=POSE_SOURCES)
-    dense_translation: str = _option('both', choices=DENSE_TRANSLATIONS)
-    dense_mask: str = _option('none', choices=DENSE_MASKS)
-    backend: str = _option('onnxruntime', choices=BACKENDS)
-    precision: str = _option('auto', choices=PRECISIONS)
-    device: str = _option('cpu')
-    threads: int = _option(0, 0, 256)
+    score_threshold: float = _setting(
+        0.3, 'Detections scoring below this (0..1) are ignored.', 0.0, 1.0)
+    max_instances: int = _setting(
+        1, 'Most instances reported per object and frame.', 1, 100)
+    box_consistency_weight: float = _setting(
+        20.0, 'With a multi-hypothesis Q-Net, how much the Bounding Box Equation misfit '
+        '(largest side residual / longest box side) counts against the log-probability in '
+        'choosing a rotation; 0: the best-scored one.', 0.0, 1000.0)
+    mask_consistency_weight: float = _setting(
+        0.0, "With a multi-hypothesis Q-Net, how much each hypothesis' silhouette agreement "
+        "(soft IoU, 0..1) with the dense net's amodal mask counts in ranking them; 0: none. "
+        'Above 0 the dense net runs on every detection.', 0.0, 1000.0)
+    refine: bool = _setting(
+        True, 'Refine each pose by aligning the mesh silhouette with the image '
+        '(region-based, no learning); its score becomes the pose confidence.')
+    refine_hypotheses: int = _setting(
+        3, "How many of each detection's best-ranked rotation hypotheses are refined; the "
+        'best-scored is kept (cost grows with it).', 1, 8)
+    refine_min_score: float = _setting(
+        0.0, 'Refined poses scoring below this (0..1: share of contour lines that agree with '
+        'the image) are dropped; 0 keeps all.', 0.0, 1.0)
+    refine_prior_deg: float = _setting(
+        0.0, "Standard deviation of a prior around each refinement start's rotation, "
+        'degrees: the smaller, the less a start moves; 0: none.', 0.0, 180.0)
+    refine_prior_mm: float = _setting(
+        0.0, "The same for the start's translation, millimetres; 0: none.", 0.0, 1000.0)
+    refine_threads: int = _setting(
+        0, "Threads the refinement's per-line loops run on, split by pose; 0: one per core.",
+        0, 256)
+    refine_occlusions: bool = _setting(
+        True, "The poses of a frame hide each other's contour lines where one is nearer the "
+        'camera (the image shows the occluder there).')
+    refine_mask_choice_weight: float = _setting(
+        8.0, "Where the dense net runs, how much each refined candidate's silhouette "
+        'agreement (soft IoU, 0..1) with its amodal mask counts beside the refinement score '
+        "in choosing a detection's pose; 0: the score alone. It does not make the dense net "
+        'run.', 0.0, 1000.0)
+    pose_source: str = _setting(
+        'qnet', "Where each detection's candidate poses come from: qnet (Q-Net + the "
+        'Bounding Box Equation, the paper), dense (PnP over the dense correspondences) or '
+        'dense+qnet (both).', choices=POSE_SOURCES)
+    dense_translation: str = _setting(
+        'both', "With the dense net: the PnP pose's translation (pnp), the Bounding Box "
+        "Equation's from PnP's rotation (bbox_equation), or both candidates.",
+        choices=DENSE_TRANSLATIONS)
+    dense_mask: str = _setting(
+        'none', "With refine: the refiner's foreground model, the dense net's predicted "
+        'amodal or visible mask, or none (the colours).', choices=DENSE_MASKS)
+    tracking: bool = _setting(
+        False, 'Start each refined object from its pose in the previous frame and run the '
+        'detector and Q-Net only when needed (needs refine).')
+    tracking_redetect_every: int = _setting(
+        10, 'With tracking, run the detector and Q-Net at least every this many frames, so '
+        'new objects are found.', 1, 1000)
+    tracking_min_score: float = _setting(
+        0.5, 'With tracking, a track whose refinement scores below this (0..1) is lost.',
+        0.0, 1.0)
+    inference_backend: str = _setting(
+        'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
+        choices=BACKENDS)
+    inference_precision: str = _setting(
+        'auto', 'What the detector and Q-Net run as: fp32, int8 (the int8 graph <weights '
+        'stem>_int8.onnx beside each weight file; onnxruntime only) or auto (int8 on a CPU '
+        'with int8 dot-product instructions where those graphs exist, else fp32).',
+        choices=PRECISIONS)
+    device: str = _setting(
+        'cpu', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
+        'backend).')
+    inference_threads: int = _setting(
+        0, 'CPU (intra-op) threads of the inference backend; 0: its default (one per core).',
+        0, 256)
 
     def __post_init__(self) -> None:
-        for option in fields(self):
-            check_option(option.name, getattr(self, option.name))
-        if self.backend != 'torch' and self.device != 'cpu':
-            raise InputError(f'backend / device: {self.backend} runs on the CPU only; use '
-                             f'the torch backend for device {self.device}')
-        if self.precision == 'int8' and self.backend != 'onnxruntime':
-            raise InputError(f'precision / backend: the int8 graphs run on onnxruntime, not '
-                             f'{self.backend}')
+        for setting in fields(self):
+            check_option(setting.name, getattr(self, setting.name))
+        if self.inference_backend != 'torch' and self.device != 'cpu':
+            raise InputError(f'inference_backend / device: {self.inference_backend} runs on '
+                             f'the CPU only; use the torch backend for device {self.device}')
+        if self.inference_precision == 'int8' and self.inference_backend != 'onnxruntime':
+            raise InputError(f'inference_precision / inference_backend: the int8 graphs run '
+                             f'on onnxruntime, not {self.inference_backend}')
+        if self.tracking and not self.refine:
+            raise InputError('tracking / refine: tracking follows refined poses; set refine '
+                             'true or tracking false')
 
     @property
     def uses_qnet(self) -> bool:
@@ -142,23 +161,24 @@ class PipelineOptions:
         return self.pose_source in ('dense', 'dense+qnet')
 
     @property
-    def runs_dense(self) -> bool:
-        """Tell whether the dense net runs: for its PnP poses or its masks."""
-        return self.uses_dense or (self.refine and self.dense_mask != 'none') or \
-            self.ranks_by_mask
-
-    @property
     def ranks_by_mask(self) -> bool:
         """Tell whether Q-Net's hypotheses are ranked by the dense net's amodal masks too."""
         return self.uses_qnet and self.mask_consistency_weight > 0.0
 
-    @property
-    def refiner_config(self) -> RefinerConfig:
-        """Return the shipped RefinerConfig with these options' prior, threads, occlusions."""
-        return RefinerConfig(prior_rotation_deg=self.refine_prior_deg,
-                             prior_translation_m=self.refine_prior_mm / 1000.0,
-                             threads=self.refine_threads,
-                             model_occlusions=self.refine_occlusions)
+    def runs_dense(self, rotations_given: bool = False) -> bool:
+        """
+        Tell whether the dense net runs: for its PnP poses or its masks.
+
+        With ``rotations_given`` (the ground truth replaces the rotations) its poses are not
+        wanted, so it runs only where it would otherwise and its masks are used: as the
+        refiner's foreground or in choosing among refined candidates.
+        """
+        runs = self.uses_dense or (self.refine and self.dense_mask != 'none') or \
+            self.ranks_by_mask
+        if rotations_given:
+            return runs and self.refine and (
+                self.dense_mask != 'none' or self.refine_mask_choice_weight > 0.0)
+        return runs
 
     @property
     def candidates_per_detection(self) -> int:
@@ -166,26 +186,47 @@ class PipelineOptions:
         return self.refine_hypotheses if self.refine else 1
 
 
-_FIELDS = {option.name: option for option in fields(PipelineOptions)}
+@dataclass(frozen=True)
+class Setting:
+    """
+    One field of PipelineOptions as the generators see it.
+
+    Attributes:
+        name: the field's name, also the node parameter's and (dashed) the CLI option's.
+        kind: the Python type, bool, int, float or str.
+        default: the shipped value.
+        description: one line, with units.
+        limits: inclusive (low, high), or None.
+        choices: the values a str setting takes, or None.
+
+    """
+
+    name: str
+    kind: type
+    default: Any
+    description: str
+    limits: tuple[float, float] | None
+    choices: tuple[str, ...] | None
+
+
 _TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str}
-
-
-def option_range(name: str) -> tuple[float, float] | None:
-    """Return the inclusive (low, high) of option ``name``, None when it has no range."""
-    return _FIELDS[name].metadata['range']
+SETTINGS = {option.name: Setting(option.name, _TYPES[option.type], option.default,
+                                 option.metadata['description'], option.metadata['range'],
+                                 option.metadata['choices'])
+            for option in fields(PipelineOptions)}
 
 
 def check_option(name: str, value: Any) -> None:
-    """Raise InputError 'name: reason' when ``value`` is not one option ``name`` takes."""
-    option = _FIELDS[name]
-    expected = _TYPES[option.type]
+    """Raise InputError 'name: reason' when ``value`` is not one setting ``name`` takes."""
+    setting = SETTINGS[name]
+    expected = setting.kind
     # bool is an int in Python; an int is a fine float; neither is accepted the other way.
     accepted = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
     if expected is float:
         accepted = isinstance(value, (int, float)) and not isinstance(value, bool)
     if not accepted:
-        raise InputError(f'{name}: {value!r} is not of type {option.type}')
-    limits, choices = option.metadata['range'], option.metadata['choices']
+        raise InputError(f'{name}: {value!r} is not of type {expected.__name__}')
+    limits, choices = setting.limits, setting.choices
     if limits is not None and not limits[0] <= value <= limits[1]:
         raise InputError(f'{name}: {value} is out of range [{limits[0]}, {limits[1]}]')
     if choices is not None and value not in choices:

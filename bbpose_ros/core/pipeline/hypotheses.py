@@ -52,7 +52,6 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
-DEFAULT_BOX_CONSISTENCY_WEIGHT = 20.0
 SCORING_POINTS = 128
 
 
@@ -81,29 +80,24 @@ class HypothesisSelector:
 
     Args:
         models: {name: ObjectModel}.
-        weight: how much the box misfit counts against the network's log-probability;
-            0 (with no mask term) keeps the network's best-scored hypothesis and solves
-            nothing.
+        weight: how much the box misfit counts against the network's log-probability,
+            >= 0 (``PipelineOptions.box_consistency_weight`` checks it); 0 (with no mask
+            term) keeps the network's best-scored hypothesis and solves nothing.
         points_per_object: hull points kept for the scoring solves.
         mask_weight: how much the silhouette's agreement with the predicted amodal mask
-            counts (0..1 IoU, times this); used when masks are given and ``agreement`` is
-            set.
+            counts (0..1 IoU, times this, >= 0); used when masks are given and
+            ``agreement`` is set.
         agreement: the MaskAgreement that scores silhouettes against masks.
 
     Raises:
-        InputError: a negative or NaN weight, a mask weight without an agreement; on a
-            call, hypotheses that do not match the detections.
+        InputError: a mask weight without an agreement; on a call, hypotheses that do not
+            match the detections.
 
     """
 
     def __init__(self, models: Mapping[str, ObjectModel],
-                 weight: float = DEFAULT_BOX_CONSISTENCY_WEIGHT,
-                 points_per_object: int = SCORING_POINTS, mask_weight: float = 0.0,
-                 agreement: MaskAgreement | None = None) -> None:
-        if not weight >= 0:      # also refuses NaN
-            raise InputError(f'box_consistency_weight must be >= 0, got {weight}')
-        if not mask_weight >= 0:
-            raise InputError(f'mask_consistency_weight must be >= 0, got {mask_weight}')
+                 weight: float, points_per_object: int = SCORING_POINTS,
+                 mask_weight: float = 0.0, agreement: MaskAgreement | None = None) -> None:
         if mask_weight > 0 and agreement is None:
             raise InputError('mask_consistency_weight > 0 needs a MaskAgreement')
         self.weight = float(weight)

@@ -13,17 +13,21 @@
 # limitations under the License.
 
 """
-``load_pipeline``: the PosePipeline of the learned stages, from two weight files and options.
+``load_pipeline``: the PosePipeline of a PipelineOptions, from the weight files.
 
 The node, ``bbpose eval`` and ``bbpose bench`` build their pipelines here, so what runs is
 the same everywhere: the detector (``box_detector``), Q-Net (``rotation_estimator``), the
-hypothesis ranking, the Bounding Box Equation and, with ``options.refine``, the refiner
-(``refinement``).
+hypothesis ranking, the Bounding Box Equation, the dense net (``correspondences``) where
+the options use it, the refiner (``refinement``) with ``refine``, and a PoseTracker
+around it all with ``tracking``. ``StagesGiven`` says which stages the ground truth
+replaces (``bbpose eval --boxes gt / --rotation gt``): those are not loaded, and every
+other stage is the one the options build.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,6 +46,7 @@ from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
+from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 
 if TYPE_CHECKING:
@@ -51,71 +56,95 @@ if TYPE_CHECKING:
 MAX_WARM_UP_BATCH = 16
 
 
-def load_pipeline(models: Mapping[str, ObjectModel],
-                  options: PipelineOptions | None = None,
-                  detector_weights: Path | str | None = None,
-                  qnet_weights: Path | str | None = None,
-                  refiner_log: Callable[[str], None] | None = None,
-                  dense_weights: Path | str | None = None) -> PosePipeline:
+@dataclass(frozen=True)
+class WeightFiles:
+    """The weight files of the learned stages; None: the shipped file."""
+
+    detector: Path | str | None = None
+    qnet: Path | str | None = None
+    dense: Path | str | None = None
+
+
+@dataclass(frozen=True)
+class StagesGiven:
     """
-    Build a PosePipeline with the learned detector and Q-Net, warmed up.
+    Which stages the caller replaces by the ground truth, passing their outputs to ``estimate``.
+
+    Attributes:
+        boxes: the detections are given: no detector is loaded.
+        rotations: the rotations are given: no Q-Net is loaded, and the dense net only where
+            its masks are used (``PipelineOptions.runs_dense(rotations_given=True)``).
+
+    """
+
+    boxes: bool = False
+    rotations: bool = False
+
+
+def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
+                  weights: WeightFiles = WeightFiles(), given: StagesGiven = StagesGiven(),
+                  log: Callable[[str], None] | None = None) -> PosePipeline | PoseTracker:
+    """
+    Build the pipeline of ``options`` with the learned stages, warmed up.
 
     Args:
-        models: {name: ObjectModel}; every name must be covered by both weight files.
-        options: PipelineOptions (default: the shipped settings).
-        detector_weights: detector file (default: the shipped ``weights/detector.pt``).
-        qnet_weights: Q-Net file (default: the shipped ``weights/qnet.pt``).
-        refiner_log: gets a line for each viewpoint model the refiner builds (once per
-            mesh, then cached).
-        dense_weights: dense net file, read when the options use it (``runs_dense``;
-            default: the shipped ``weights/dense.pt``).
+        models: {name: ObjectModel}; every name must be covered by the weight files.
+        options: the PipelineOptions (``PipelineOptions()``: the shipped settings).
+        weights: the weight files.
+        given: the stages the ground truth replaces.
+        log: gets a line for each viewpoint model the refiner builds (once per mesh, then
+            cached).
+
+    Returns:
+        A PosePipeline, or with ``options.tracking`` a PoseTracker around one (same
+        ``estimate`` and ``models``).
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file.
 
     """
-    options = options or PipelineOptions()
-    threads = options.threads or None
+    threads = options.inference_threads or None
     if threads is not None:
         torch.set_num_threads(threads)
     names = list(models)
     refiner = None
     if options.refine:
-        refiner = load_pose_refiner(models, options.refiner_config,
-                                    min_score=options.refine_min_score, progress=False,
-                                    log=refiner_log,
-                                    mask_choice_weight=options.refine_mask_choice_weight)
+        refiner = load_pose_refiner(models, options, progress=False, log=log)
     agreement = None
-    if options.ranks_by_mask:     # the silhouettes come from the refiner's viewpoint models
+    if options.ranks_by_mask and not given.rotations:
+        # The silhouettes come from the refiner's viewpoint models.
         agreement = MaskAgreement(refiner.viewpoint_models if refiner is not None else
-                                  load_viewpoint_models(models, progress=False, log=refiner_log))
+                                  load_viewpoint_models(models, progress=False, log=log))
     selector = HypothesisSelector(models, options.box_consistency_weight,
-                                  mask_weight=options.mask_consistency_weight,
-                                  agreement=agreement)
-    detector_weights = detector_weights or DEFAULT_DETECTOR_WEIGHTS
-    detector = BoxDetector(
-        load_network(detector_weights, 'detector', names), names, options.score_threshold,
-        options.max_instances, options.backend, options.device, threads,
-        int8_graph=int8_graph(options, detector_weights, 'detector'))
-    rotation = correspondences = None
-    if options.uses_qnet:
-        qnet_weights = qnet_weights or DEFAULT_QNET_WEIGHTS
+                                  mask_weight=0.0 if agreement is None
+                                  else options.mask_consistency_weight, agreement=agreement)
+    detector = rotation = correspondences = None
+    if not given.boxes:
+        detector_weights = weights.detector or DEFAULT_DETECTOR_WEIGHTS
+        detector = BoxDetector(
+            load_network(detector_weights, 'detector', names), names, options.score_threshold,
+            options.max_instances, options.inference_backend, options.device, threads,
+            int8_graph=int8_graph(options, detector_weights, 'detector'))
+        detector.warm_up()
+    if options.uses_qnet and not given.rotations:
+        qnet_weights = weights.qnet or DEFAULT_QNET_WEIGHTS
         qnet = load_network(qnet_weights, 'qnet', names)
         # Every hypothesis is needed when they are ranked by box or mask or several refined.
         ranked = selector.weight > 0 or options.ranks_by_mask or \
             options.candidates_per_detection > 1
-        rotation = QNetRotationEstimator(qnet, options.backend, options.device, threads,
+        rotation = QNetRotationEstimator(qnet, options.inference_backend, options.device,
+                                         threads,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked,
                                          int8_graph=int8_graph(options, qnet_weights, 'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
-    if options.runs_dense:
-        correspondences = load_correspondences(models, options, dense_weights)
-    detector.warm_up()
-    return PosePipeline(models, detector, rotation, hypothesis_selector=selector,
-                        refiner=refiner, candidates=options.candidates_per_detection,
-                        correspondences=correspondences, dense_poses=options.uses_dense,
-                        dense_translation=options.dense_translation,
-                        dense_mask=options.dense_mask)
+    if options.runs_dense(rotations_given=given.rotations):
+        correspondences = load_correspondences(models, options, weights.dense)
+    pipeline = PosePipeline(models, options, detector, rotation, hypothesis_selector=selector,
+                            refiner=refiner, correspondences=correspondences)
+    if options.tracking:
+        return PoseTracker(pipeline, TrackingConfig(options.tracking_redetect_every,
+                                                    options.tracking_min_score))
+    return pipeline
 
 
 def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOptions,
@@ -123,25 +152,25 @@ def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOpt
                          ) -> DenseCorrespondenceEstimator:
     """Build the dense stage of ``models`` from a weight file (default: the shipped one)."""
     network = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', list(models))
-    stage = DenseCorrespondenceEstimator(network, models, options.backend, options.device,
-                                         options.threads or None)
+    stage = DenseCorrespondenceEstimator(network, models, options.inference_backend,
+                                         options.device, options.inference_threads or None)
     stage.warm_up(_warm_up_batch(models, options))
     return stage
 
 
 def int8_graph(options: PipelineOptions, weights: Path | str, network: str):
     """
-    Return the int8 graph ``network`` runs under ``options.precision``, or None (float).
+    Return the int8 graph ``network`` runs under ``options.inference_precision``, or None (float).
 
     'int8' reads ``int8_graphs.int8_graph_path(weights)`` and raises InputError when it is
     missing or made from other weights; 'auto' takes it only with the onnxruntime backend on
     a CPU with int8 dot products, and where it is missing or does not fit runs the float
     network.
     """
-    if options.precision == 'fp32' or options.backend != 'onnxruntime':
+    if options.inference_precision == 'fp32' or options.inference_backend != 'onnxruntime':
         return None
     path = int8_graph_path(weights)
-    if options.precision == 'int8':
+    if options.inference_precision == 'int8':
         return read_int8_graph(path, weights, network)
     if not cpu_has_int8_dot():
         return None

@@ -51,6 +51,7 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.inference.options import PipelineOptions
     from bbpose_ros.core.pipeline.correspondences import (DenseCorrespondenceEstimator,
                                                           DenseMaps)
     from bbpose_ros.core.pipeline.refinement import PoseRefiner
@@ -62,40 +63,42 @@ class PosePipeline:
 
     Args:
         models: {name: ObjectModel} of the objects to report.
+        options: the PipelineOptions the stages were built for; the pipeline reads
+            ``candidates_per_detection``, ``uses_dense``, ``dense_translation``,
+            ``dense_mask`` and ``box_consistency_weight`` from it.
         detector: callable image -> detections, or None when detections are always given.
         rotation_estimator: callable (image, camera, detections) -> (N, 3, 3) rotations or
             RotationHypotheses, or None when rotations are always given.
+        hypothesis_selector: the HypothesisSelector that ranks RotationHypotheses; None: one
+            with the options' box weight, made when hypotheses first come.
+        refiner: a ``refinement.PoseRefiner`` (its ``best_of`` refines candidate poses and
+            keeps the best-scored one per detection); given exactly when ``options.refine``.
+        correspondences: a ``correspondences.DenseCorrespondenceEstimator``, or None (Q-Net's
+            path alone): its masks guide the refiner, and with ``options.uses_dense`` its PnP
+            poses are candidates too (placed first: unrefined, a found PnP pose is reported).
         selection: how the Bounding Box Equation chooses its touching points
             (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
-        hypothesis_selector: the HypothesisSelector that picks one of RotationHypotheses;
-            None: one with the default weight, made when hypotheses first come.
-        refiner: a ``refinement.PoseRefiner`` (its ``best_of`` refines candidate poses and
-            keeps the best-scored one per detection), or None (no refinement).
-        candidates: with RotationHypotheses, how many of each detection's best-ranked
-            hypotheses are solved (and refined: the best-scored is kept); without a refiner
-            only the first is reported (``PipelineOptions.candidates_per_detection``).
-        correspondences: a ``correspondences.DenseCorrespondenceEstimator``, or None (Q-Net's
-            path alone): its masks guide the refiner, and with ``dense_poses`` its PnP poses
-            are candidates too (placed first: unrefined, a found PnP pose is reported).
-        dense_poses: whether the dense stage's PnP poses are candidates.
-        dense_translation: 'pnp', 'bbox_equation' or 'both' (``PipelineOptions``).
-        dense_mask: 'amodal', 'visible' or 'none': the refiner's mask (``PipelineOptions``).
+
+    Raises:
+        InputError: a refiner without ``options.refine``, or ``options.refine`` without one.
 
     """
 
-    def __init__(self, models: Mapping[str, ObjectModel],
+    def __init__(self, models: Mapping[str, ObjectModel], options: PipelineOptions,
                  detector: Callable[[np.ndarray], list[Detection]] | None = None,
                  rotation_estimator: Callable[
                      [np.ndarray, CameraIntrinsics, list[Detection]],
                      np.ndarray | RotationHypotheses] | None = None,
-                 selection: str = 'tangent_planes', max_iterations: int = 10,
                  hypothesis_selector: HypothesisSelector | None = None,
-                 refiner: PoseRefiner | None = None, candidates: int = 1,
+                 refiner: PoseRefiner | None = None,
                  correspondences: DenseCorrespondenceEstimator | None = None,
-                 dense_poses: bool = True, dense_translation: str = 'pnp',
-                 dense_mask: str = 'amodal') -> None:
+                 selection: str = 'tangent_planes', max_iterations: int = 10) -> None:
+        if options.refine != (refiner is not None):
+            raise InputError(f'options.refine is {options.refine} but the pipeline was given '
+                             f'{"no" if refiner is None else "a"} refiner')
         self.models = dict(models)
+        self.options = options
         self._point_index = {name: i for i, name in enumerate(self.models)}
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
         self.detector = detector
@@ -104,11 +107,7 @@ class PosePipeline:
         self.max_iterations = max_iterations
         self.hypothesis_selector = hypothesis_selector
         self.refiner = refiner
-        self.candidates = int(candidates) if refiner is not None else 1
         self.correspondences = correspondences
-        self.dense_poses = dense_poses
-        self.dense_translation = dense_translation
-        self.dense_mask = dense_mask
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Iterable[Detection] | None = None,
@@ -134,9 +133,11 @@ class PosePipeline:
             detections = self.detector(image_rgb)
             timer.lap('detector')
         detections = [d for d in detections if d.object_name in self.models]
+        # The dense net's PnP poses are candidates unless the rotations are given.
+        dense_poses = self.options.uses_dense and rotations is None
         dense = None      # (DenseMaps, PnP poses or None when only the masks are used)
-        if detections and self.correspondences is not None and rotations is None:
-            dense = (self.correspondences(image_rgb, camera, detections) if self.dense_poses
+        if detections and self.correspondences is not None:
+            dense = (self.correspondences(image_rgb, camera, detections) if dense_poses
                      else (self.correspondences.maps(image_rgb, detections), None))
             timer.lap('correspondences')
         # The amodal masks rank Q-Net's hypotheses and judge the refined candidates.
@@ -145,20 +146,22 @@ class PosePipeline:
         if detections and rotations is None and self.rotation_estimator is not None:
             rotations = self.rotation_estimator(image_rgb, camera, detections)
             timer.lap('rotation')
-        if detections and rotations is None and not (dense is not None and self.dense_poses):
+        if detections and rotations is None and not (dense is not None and dense_poses):
             raise InputError('the pipeline has no rotation estimator and no rotations were '
                              'given')
         groups = [[] for _ in detections]
-        if dense is not None and self.dense_poses:
+        if dense is not None and dense_poses:
             for k, pose in self._dense_candidates(camera, detections, dense[1]):
                 groups[k].append(pose)
         if rotations is not None and detections:
             count = 1
             if isinstance(rotations, RotationHypotheses):
                 if self.hypothesis_selector is None:
-                    self.hypothesis_selector = HypothesisSelector(self.models)
-                rotations = self.hypothesis_selector.ranked(camera, detections, rotations,
-                                                            self.candidates, amodal)
+                    self.hypothesis_selector = HypothesisSelector(
+                        self.models, self.options.box_consistency_weight)
+                rotations = self.hypothesis_selector.ranked(
+                    camera, detections, rotations, self.options.candidates_per_detection,
+                    amodal)
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
             solved = self.translations(camera, [d for d in detections for _ in range(count)],
@@ -178,15 +181,16 @@ class PosePipeline:
 
     def masks_of(self, maps: DenseMaps) -> ForegroundMasks | None:
         """Return the refiner's masks of a frame's DenseMaps (``dense_mask``), or None."""
-        return None if self.dense_mask == 'none' else dense_masks(maps, self.dense_mask)
+        kind = self.options.dense_mask
+        return None if kind == 'none' else dense_masks(maps, kind)
 
     def _dense_candidates(self, camera, detections, dense_poses):
         """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""
         found = [(k, p) for k, p in enumerate(dense_poses) if p is not None]
-        if self.dense_translation in ('pnp', 'both'):
+        if self.options.dense_translation in ('pnp', 'both'):
             yield from ((k, PoseEstimate(detections[k], p.rotation, p.translation,
                                          source='pnp')) for k, p in found)
-        if self.dense_translation in ('bbox_equation', 'both') and found:
+        if self.options.dense_translation in ('bbox_equation', 'both') and found:
             solved = self.translations(camera, [detections[k] for k, _ in found],
                                        [p.rotation for _, p in found], 'pnp_rotation')
             yield from zip([k for k, _ in found], solved)

@@ -34,6 +34,7 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.refine.color_histograms import color_bins, ColorHistograms
@@ -248,17 +249,24 @@ def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:
                                refinement_score=result.score)
 
 
-def load_pose_refiner(models: Mapping[str, ObjectModel], config: RefinerConfig | None = None,
-                      min_score: float = 0.0, cache_dir: Path | str | None = None,
-                      progress: bool = True,
-                      log: Callable[[str], None] | None = None,
-                      mask_choice_weight: float = 0.0) -> PoseRefiner:
-    """
-    Build a PoseRefiner of the objects, viewpoint models from the cache (built if new).
+def refiner_config(options: PipelineOptions) -> RefinerConfig:
+    """Return the shipped RefinerConfig with the options' prior, threads and occlusions."""
+    return RefinerConfig(prior_rotation_deg=options.refine_prior_deg,
+                         prior_translation_m=options.refine_prior_mm / 1000.0,
+                         threads=options.refine_threads,
+                         model_occlusions=options.refine_occlusions)
 
-    The refinement's kernels are compiled (or loaded from numba's cache) first, so that the
-    first frame runs at speed.
+
+def load_pose_refiner(models: Mapping[str, ObjectModel], options: PipelineOptions,
+                      cache_dir: Path | str | None = None, progress: bool = True,
+                      log: Callable[[str], None] | None = None) -> PoseRefiner:
+    """
+    Build the PoseRefiner of ``options`` for the objects, viewpoint models from the cache.
+
+    The viewpoint models are built where new (once per mesh). The refinement's kernels are
+    compiled (or loaded from numba's cache) first, so that the first frame runs at speed.
     """
     compile_kernels()
     return PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
-                       config, min_score, mask_choice_weight=mask_choice_weight)
+                       refiner_config(options), options.refine_min_score,
+                       mask_choice_weight=options.refine_mask_choice_weight)

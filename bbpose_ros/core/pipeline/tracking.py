@@ -56,24 +56,24 @@ class TrackingConfig:
     Settings of the tracker.
 
     Attributes:
-        redetect_every: run the full pipeline at least every this many frames (1: always).
-        min_track_score: a track whose refinement scores below this (0..1) is lost.
+        redetect_every: run the full pipeline at least every this many frames, >= 1
+            (``PipelineOptions.tracking_redetect_every`` checks it).
+        min_track_score: a track whose refinement scores below this (0..1) is lost
+            (``PipelineOptions.tracking_min_score``).
         iterations: correspondence iterations of a tracking refinement (the refiner's
             last scales and standard deviations are used).
         color_rate: how far a track's colour model moves towards each frame's (0..1).
 
     """
 
-    redetect_every: int = 10
-    min_track_score: float = 0.5
+    redetect_every: int
+    min_track_score: float
     iterations: int = 3
     color_rate: float = 0.2
 
     def __post_init__(self) -> None:
-        if self.redetect_every < 1 or self.iterations < 1:
-            raise InputError('tracking needs redetect_every >= 1 and iterations >= 1')
-        if not (0.0 <= self.min_track_score <= 1.0 and 0.0 <= self.color_rate <= 1.0):
-            raise InputError('min_track_score and color_rate must be in [0, 1]')
+        if self.iterations < 1 or not 0.0 <= self.color_rate <= 1.0:
+            raise InputError('tracking needs iterations >= 1 and color_rate in [0, 1]')
 
 
 @dataclass
@@ -94,11 +94,11 @@ class PoseTracker:
 
     """
 
-    def __init__(self, pipeline: PosePipeline, config: TrackingConfig | None = None) -> None:
+    def __init__(self, pipeline: PosePipeline, config: TrackingConfig) -> None:
         if not isinstance(pipeline.refiner, PoseRefiner):
             raise InputError('tracking needs a pipeline with a PoseRefiner')
         self.pipeline = pipeline
-        self.config = config or TrackingConfig()
+        self.config = config
         self.tracks: dict[str, Track] = {}
         self._since_detection = 0
 
