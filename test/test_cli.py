@@ -139,3 +139,20 @@ def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
                    tmp_path / 'replay.avi')
     assert video.returncode == 2 and 'replay.avi' in video.stderr and '.mp4' in video.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_eval_writes_instance_records_that_compare_pairs(lmo_root, tmp_path):
+    out = tmp_path / 'r.json'
+    result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
+                    '--no-refine', '--max-frames', '2', '--json', out)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    records = json.loads((tmp_path / 'r.instances.json').read_text())
+    assert len(records) == sum(o['n'] for o in report['objects'].values())
+    assert {'key', 'object', 'found', 'add_s', 'cm5deg5', 'te_mm'} <= set(records[0])
+    same = bbpose('compare', out, tmp_path / 'r.instances.json')
+    assert same.returncode == 0, same.stderr
+    assert '+0.000   [+0.000, +0.000]' in same.stdout
+    missing = bbpose('compare', out, tmp_path / 'nope.json')
+    assert missing.returncode == 2 and 'nope.instances.json' in missing.stderr

@@ -24,6 +24,7 @@ from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
+from bbpose_ros.core.eval.paired import instances_path
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
@@ -63,7 +64,9 @@ def add_parser(subparsers):
     add_frames_argument(parser)
     parser.add_argument('--min-visib', type=float, default=0.1,
                         help='count instances at least this visible (default %(default)s)')
-    parser.add_argument('--json', type=Path, default=None, help='write the report here')
+    parser.add_argument('--json', type=Path, default=None,
+                        help='write the report here, and one record per instance beside it '
+                             '(R.instances.json, for bbpose compare)')
     parser.add_argument('--plots', type=Path, default=None,
                         help='write charts into this folder: recall curves, per-object '
                              'recalls, errors by visible fraction, what a minimum confidence '
@@ -161,8 +164,11 @@ def run(args):
               '(v30: >= 0.3)')
         print(format_detection_report(detection))
     if args.json is not None:
+        records = [score.record() for object_scores in scores.values()
+                   for score in object_scores]
+        write_json_atomic(instances_path(args.json), records)
         write_json_atomic(args.json, report)
-        print(f'report written to {args.json}')
+        print(f'report written to {args.json} (instances: {instances_path(args.json)})')
     if args.plots is not None:
         write_plots(args.plots, scores, report['objects'], report.get('sweep'),
                     report['confidence'])

@@ -66,7 +66,9 @@ class InstanceScore:
 
     ``confidence`` is the pose's (``PoseEstimate.confidence``: the refinement score when
     refined, else the detection score), NaN where missed; ``source`` where the pose came
-    from (``PoseEstimate.source``), None where missed.
+    from (``PoseEstimate.source``), None where missed; ``key`` names the instance
+    ('<scene_id>/<image_id>/<index in the frame's ground truth>', ``instance_key``), so two
+    runs over the same frames pair instance by instance (``paired``).
     """
 
     object_name: str
@@ -81,6 +83,30 @@ class InstanceScore:
     visib_fract: float
     confidence: float
     source: str | None = None
+    key: str = ''
+
+    def record(self) -> dict[str, Any]:
+        """Return the instance as a JSON-ready dict: errors in mm and degrees, passes."""
+        add_ok, cm_deg = (bool(x[0]) for x in _passes([self]))
+        return {'key': self.key, 'object': self.object_name, 'visib_fract': self.visib_fract,
+                'found': self.detected, 'source': self.source,
+                'confidence': _finite_or_none(self.confidence),
+                'add_mm': _finite_or_none(self.add_error * 1000.0),
+                'add_threshold_mm': self.add_threshold * 1000.0,
+                're_deg': _finite_or_none(self.re_deg),
+                'te_mm': _finite_or_none(self.te_m * 1000.0),
+                'proj_px': _finite_or_none(self.proj_px),
+                'add_s': add_ok, 'cm5deg5': cm_deg,
+                'proj5px': bool(self.proj_px < PROJ_THRESHOLD_PX)}
+
+
+def instance_key(frame: BopFrame, index: int) -> str:
+    """Name instance ``index`` of a frame's ground truth: '<scene_id>/<image_id>/<index>'."""
+    return f'{frame.scene_id}/{frame.image_id}/{index}'
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def match_by_score(boxes_det: npt.ArrayLike, scores: npt.ArrayLike, boxes_gt: npt.ArrayLike,
@@ -275,8 +301,9 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
     scores = {name: [] for name in pipeline.models}
     timings = []
     for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress):
-        counted = [i for i in frame.instances
+        indices = [k for k, i in enumerate(frame.instances)
                    if i.object_name in pipeline.models and i.visib_fract >= min_visib]
+        counted = [frame.instances[k] for k in indices]
         image = frame.load_image()
         detections = ground_truth_detections(counted) if boxes == 'gt' else None
         if rotation == 'gt':
@@ -295,8 +322,9 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
         else:
             result = pipeline.estimate(image, frame.camera, detections)
         timings.append(result.timings_ms)
-        for score in score_frame(pipeline.models, counted, result.poses, frame.camera):
-            scores[score.object_name].append(score)
+        for k, score in zip(indices, score_frame(pipeline.models, counted, result.poses,
+                                                 frame.camera)):
+            scores[score.object_name].append(replace(score, key=instance_key(frame, k)))
     return scores, timings
 
 
