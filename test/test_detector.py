@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.eval.detection import average_precision
+from bbpose_ros.core.eval.detection import average_precision, box_errors, score_detections
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.verifier import CandidateVerifier
 from bbpose_ros.core.pipeline.box_detector import best_per_class, BoxDetector
+from bbpose_ros.core.pipeline.poses import Detection
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 
@@ -137,3 +138,20 @@ def test_average_precision():
     assert abs(average_precision([0.9, 0.8, 0.7], [True, False, True], 2) - 5 / 6) < 1e-12
     assert average_precision([0.9], [True], 4) == 0.25
     assert np.isnan(average_precision([], [], 0))
+
+
+def test_box_errors_tell_a_shrunk_box_by_its_size(lmo_frames):
+    frames = lmo_frames[:5]
+
+    def shrunk(box, scale=0.9):
+        centre, half = (box[:2] + box[2:]) / 2, (box[2:] - box[:2]) / 2 * scale
+        return np.concatenate([centre - half, centre + half])
+
+    detections = [[Detection(i.object_name, 1.0, shrunk(i.box_uv)) for i in frame.instances]
+                  for frame in frames]
+    report = score_detections(frames, detections, ['ape', 'can', 'cat', 'duck'])
+    for figures in report['detection'].values():
+        assert figures['recall_iou50'] == 1.0
+        assert figures['size_error_median'] == pytest.approx(-0.1)
+        assert 0.02 < figures['side_error_rms'] < 0.07
+    assert np.isnan(box_errors(np.zeros((0, 4)), np.zeros((0, 4)))['side_error_rms'])

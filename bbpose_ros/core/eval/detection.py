@@ -19,7 +19,9 @@ Boxes are amodal [u_min, v_min, u_max, v_max] in continuous pixels, compared wit
 ground-truth ``bbox_obj`` boxes. Per object name, detections are matched greedily by score
 (``evaluation.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
 detection that only matches a less visible instance is ignored (neither hit nor false alarm).
-Recall is also given over the instances with visible fraction >= 0.3. AP is computed over
+Recall is also given over the instances with visible fraction >= 0.3, and how far the
+matched boxes are off (``box_errors``): the Bounding Box Equation's depth scales with the
+box, so a box's relative size error is its pose's relative depth error. AP is computed over
 the detections the detector reports, so its score threshold (0.3 in ``load_pipeline``) cuts
 the precision-recall curve short.
 """
@@ -98,9 +100,10 @@ def score_detections(frames: Sequence[BopFrame], detections: Sequence[Sequence[D
 
     Returns:
         {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
-        'recall_iou50_visib30'}}, 'mean': {'recall_iou50', 'ap50', 'recall_iou50_visib30'}
-        averaged over the objects where they are defined}. ``n`` counts the instances with
-        visible fraction >= ``min_visib``, ``n_visib30`` those >= 0.3; a figure with no
+        'recall_iou50_visib30', 'size_error_median', 'side_error_rms'}}, 'mean': the
+        figures averaged over the objects where they are defined}. ``n`` counts the
+        instances with visible fraction >= ``min_visib``, ``n_visib30`` those >= 0.3; the
+        box errors are ``box_errors``' over the matched counted instances; a figure with no
         instance to count is NaN.
 
     Raises:
@@ -111,10 +114,11 @@ def score_detections(frames: Sequence[BopFrame], detections: Sequence[Sequence[D
         raise ValueError(f'{len(detections)} lists of detections for {len(frames)} frames')
     found = {n: [] for n in names}       # per counted instance: (visib, hit)
     dets = {n: [] for n in names}        # per detection: (score, hit)
+    pairs = {n: [] for n in names}       # per hit: (detected box, true box)
     for frame, frame_detections in zip(frames, detections):
         for name in names:
             _score_object(name, frame_detections, frame.instances, min_visib, found[name],
-                          dets[name])
+                          dets[name], pairs[name])
     per_object = {}
     for name in names:
         visib = np.array([v for v, _ in found[name]], dtype=float)
@@ -127,15 +131,43 @@ def score_detections(frames: Sequence[BopFrame], detections: Sequence[Sequence[D
                                       [h for _, h in dets[name]], len(hit)),
             'n_visib30': int(strict.sum()),
             'recall_iou50_visib30': float(hit[strict].mean()) if strict.any() else math.nan,
+            **box_errors([d for d, _ in pairs[name]], [t for _, t in pairs[name]]),
         }
     return {'detection': per_object,
             'mean': mean_over_objects(per_object, ('recall_iou50', 'ap50',
-                                                   'recall_iou50_visib30'))}
+                                                   'recall_iou50_visib30', 'size_error_median',
+                                                   'side_error_rms'))}
+
+
+def box_errors(detected_uv: npt.ArrayLike, true_uv: npt.ArrayLike) -> dict[str, float]:
+    """
+    How far matched (N, 4) boxes are off their (N, 4) true amodal boxes, relative to size.
+
+    Returns:
+        {'size_error_median': the median of sqrt(detected area / true area) - 1 (signed: a
+        box too small is negative, and puts the equation's depth too far by about as much),
+        'side_error_rms': the root mean square of the four sides' offsets over the true
+        box's sqrt(area)}; NaN for no boxes.
+
+    """
+    detected = np.asarray(detected_uv, dtype=float).reshape(-1, 4)
+    truth = np.asarray(true_uv, dtype=float).reshape(-1, 4)
+    if not len(truth):
+        return {'size_error_median': math.nan, 'side_error_rms': math.nan}
+
+    def size(boxes):
+        return np.sqrt((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]))
+
+    sides = (detected - truth) / size(truth)[:, None]
+    return {'size_error_median': float(np.median(size(detected) / size(truth) - 1.0)),
+            'side_error_rms': float(np.sqrt(np.mean(sides ** 2)))}
 
 
 DETECTION_COLUMNS = (('n', 'n', '{:d}'), ('recall_iou50', 'recall50', '{:.3f}'),
                      ('ap50', 'AP50', '{:.3f}'), ('n_visib30', 'n_vis30', '{:d}'),
-                     ('recall_iou50_visib30', 'recall50_v30', '{:.3f}'))
+                     ('recall_iou50_visib30', 'recall50_v30', '{:.3f}'),
+                     ('size_error_median', 'size_err', '{:+.3f}'),
+                     ('side_error_rms', 'side_rms', '{:.3f}'))
 
 
 def format_detection_report(report: Mapping[str, Any]) -> str:
@@ -143,8 +175,8 @@ def format_detection_report(report: Mapping[str, Any]) -> str:
     return format_object_table(report['detection'], report['mean'], DETECTION_COLUMNS, 13)
 
 
-def _score_object(name, detections, instances, min_visib, found, dets):
-    """Match one object's detections in a frame; append to ``found`` and ``dets``."""
+def _score_object(name, detections, instances, min_visib, found, dets, pairs):
+    """Match one object's detections in a frame; append to ``found``, ``dets``, ``pairs``."""
     mine = [d for d in detections if d.object_name == name]
     truths = [i for i in instances if i.object_name == name]
     matches = match_by_score([d.box_uv for d in mine], [d.score for d in mine],
@@ -157,3 +189,5 @@ def _score_object(name, detections, instances, min_visib, found, dets):
         if match >= 0 and truths[match].visib_fract < min_visib:
             continue
         dets.append((detection.score, bool(match >= 0)))
+        if match >= 0:
+            pairs.append((detection.box_uv, truths[match].box_uv))
