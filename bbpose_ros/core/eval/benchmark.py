@@ -47,6 +47,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 import os
 from pathlib import Path
+import platform
 import resource
 import time
 from typing import Any, TYPE_CHECKING
@@ -95,6 +96,17 @@ SOAK_LATENCY_P95_DRIFT_PERCENT = 10.0
 RSS_SETTLE_S = 10.0
 SOAK_SETTLE_S = 60.0
 _CLOCK_TICKS_PER_S = os.sysconf('SC_CLK_TCK')     # unit of /proc/<pid>/stat CPU times
+
+
+def cpu_name() -> str:
+    """Name the CPU as /proc/cpuinfo's 'model name' does (Linux), else as platform does."""
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or 'unknown'
 
 
 def peak_rss_mb() -> float:
@@ -150,7 +162,8 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
     Returns:
         {'stages': {stage: latency_stats}, 'total', 'fps', 'objects_per_frame'} of the
         detector mode, its 'all_objects' and (refining pipelines) 'tracking' counterparts,
-        'peak_rss_mb', 'frames' and 'budgets' ({name: {'value', 'limit', 'met'}}).
+        'peak_rss_mb', 'frames', 'cpu' (its name), 'cpu_count' and 'budgets'
+        ({name: {'value', 'limit', 'met'}}).
 
     """
     if not frames:
@@ -175,7 +188,8 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
     report['all_objects'] = _summary(timings['all_objects'])
     if refining:
         report['tracking'] = _summary(timings['tracking'])
-    report.update(peak_rss_mb=peak_rss_mb(), frames=len(frames))
+    report.update(peak_rss_mb=peak_rss_mb(), frames=len(frames), cpu=cpu_name(),
+                  cpu_count=os.cpu_count())
     budgets = REFINED_FRAME_BUDGETS if refining else FRAME_BUDGETS
     report['budgets'] = {name: budget(_frame_statistic(report, *where[:3]), where[3])
                          for name, where in budgets.items()}
@@ -219,7 +233,8 @@ def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
         rate_hz: per minute of publication {'minute', 'published', 'answered',
         'answer_latency_median_ms', 'answer_latency_p95_ms', 'rss_mb' (the last sample of
         the minute)}), 'latency_p95_drift_percent' (the answer p95 of the last full minute
-        against the first's, in %; None with fewer than two full minutes), 'budgets'}.
+        against the first's, in %; None with fewer than two full minutes), 'cpu' (its
+        name), 'cpu_count', 'budgets'}.
         The budgets are on the answer p95, the frames dropped and 'rss_growth_percent',
         and, where known, on the growth after settling and the p95 drift; the settled
         figures tell a one-off step in the first seconds from a steady climb.
@@ -244,7 +259,8 @@ def summarize_graph(latencies: Sequence[Mapping[str, float]], published: int,
                  'rss_growth_after_settle_percent':
                      None if settled is None else 100.0 * (node_end.rss_mb - settled) / settled,
                  'rss_trace_mb': [[round(s, 2), round(mb, 1)] for s, mb in rss_trace],
-                 'counts': dict(node_counts)}}
+                 'counts': dict(node_counts)},
+        'cpu': cpu_name(), 'cpu_count': os.cpu_count()}
     report['per_minute'], report['latency_p95_drift_percent'] = (
         _per_minute(latencies, rss_trace, rate_hz) if rate_hz else ([], None))
     report['budgets'] = {
