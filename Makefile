@@ -93,6 +93,12 @@ demo: setup
 lint: setup
 	$(BIN)/python -m pytest test -m linter
 
+# The docs' generated tables (README.md, docs/results.md, docs/performance.md) from the
+# reports in docs/reports/; `bbpose docs --check` compares without writing.
+.PHONY: docs
+docs: $(STAMP)
+	$(BIN)/bbpose docs
+
 clean:
 	rm -rf build install log $(OUT) .pytest_cache
 

@@ -27,7 +27,7 @@ import sys
 from bbpose_ros import __version__
 from bbpose_ros.core.errors import InputError
 
-SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench')
+SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench', 'docs')
 
 
 def build_parser():

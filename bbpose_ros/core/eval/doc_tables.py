@@ -1,0 +1,199 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+What each generated table of the docs shows (``bbpose docs``, ``make docs``).
+
+A table's name is its marker in the doc (``<!-- table: NAME -->``); its reports are the
+files ``docs/reports/NAME.json``, made by the command in ``REPORT_COMMANDS``. To add a
+figure to the docs, add a report (run its command) and a table here, then mark the table
+where it goes and run ``make docs``.
+"""
+
+from bbpose_ros.core.eval.report_tables import (
+    Column, ListTable, ObjectsTable, RunsTable, StagesTable)
+
+_EVAL = 'bbpose eval --dataset ../shared/datasets/lmo'
+_BENCH = 'bbpose bench --dataset ../shared/datasets/lmo --threads 1'
+
+# report name -> the command that wrote it (with --json docs/reports/NAME.json).
+REPORT_COMMANDS = {
+    'eval_detector': f'{_EVAL} --boxes detector',
+    'eval_detector_fp32': f'{_EVAL} --boxes detector --inference-precision fp32',
+    'eval_detector_norefine': f'{_EVAL} --boxes detector --no-refine',
+    'eval_detector_dense': f'{_EVAL} --boxes detector --pose-source dense+qnet',
+    'eval_gt': f'{_EVAL} --boxes gt',
+    'eval_gt_fp32': f'{_EVAL} --boxes gt --inference-precision fp32',
+    'eval_gt_norefine': f'{_EVAL} --boxes gt --no-refine',
+    'eval_gt_norefine_fp32': f'{_EVAL} --boxes gt --no-refine --inference-precision fp32',
+    'eval_gt_dense': f'{_EVAL} --boxes gt --pose-source dense+qnet',
+    'eval_gt_gt': f'{_EVAL} --boxes gt --rotation gt',
+    'eval_gt_gt_norefine': f'{_EVAL} --boxes gt --rotation gt --no-refine',
+    'eval_gt_gt_exact': f'{_EVAL} --boxes gt --rotation gt --perturb-gt 0,0',
+    'eval_gt_gt_exact_dense': f'{_EVAL} --boxes gt --rotation gt --perturb-gt 0,0 '
+                              '--pose-source dense+qnet',
+    'eval_gt_gt_perturbed': f'{_EVAL} --boxes gt --rotation gt --perturb-gt 15,20',
+    'eval_gt_gt_sweep': f'{_EVAL} --boxes gt --rotation gt ' + ' '.join(
+        f'--perturb-gt {level}' for level in ('0,0', '5,10', '10,20', '15,20', '20,20',
+                                              '30,20', '45,20')),
+    'bench': _BENCH,
+    'bench_fp32': f'{_BENCH} --param inference_precision:=fp32',
+    'bench_graph': f'{_BENCH} --graph',
+}
+
+_NETWORKS = Column('networks', ('config.detector_network', 'config.qnet_network'), '{}')
+_RECALL = Column('recall@0.5 (visib >= 0.3)', ('detection.mean.recall_iou50_visib30',))
+_AP50 = Column('AP50', ('detection.mean.ap50',))
+_ROTATION = Column('rotation median (deg)', ('mean.re_median_deg',), '{:.1f}')
+_TRANSLATION = Column('translation median (mm)', ('mean.te_median_mm',), '{:.0f}')
+_ADD = Column('ADD(-S)', ('mean.add_s_recall',))
+_CM5DEG5 = Column('5 cm / 5 deg', ('mean.cm5deg5',))
+_PROJ = Column('2D projection 5 px', ('mean.proj5px',))
+
+_RUNS = (
+    ('detector boxes, Q-Net, refined (the defaults)', 'eval_detector'),
+    ('detector boxes, not refined', 'eval_detector_norefine'),
+    ('detector boxes, `--pose-source dense+qnet`', 'eval_detector_dense'),
+    ('ground-truth boxes, Q-Net, refined', 'eval_gt'),
+    ('ground-truth boxes, Q-Net, not refined', 'eval_gt_norefine'),
+    ('ground-truth boxes, `--pose-source dense+qnet`', 'eval_gt_dense'),
+    ('ground-truth boxes and rotations, refined', 'eval_gt_gt'),
+    ('ground-truth boxes and rotations, not refined (the equation alone)',
+     'eval_gt_gt_norefine'),
+    ('the exact truth, refined (`--perturb-gt 0,0`)', 'eval_gt_gt_exact'),
+    ('the exact truth, refined, `--pose-source dense+qnet`', 'eval_gt_gt_exact_dense'),
+    ('the truth turned 15 deg and moved 20 mm, refined', 'eval_gt_gt_perturbed'),
+)
+
+# Per object: n, found, errors and recalls; with the detector its recall and AP50 first.
+_PER_OBJECT = (
+    Column('n', ('{o}.n',), '{:.0f}'),
+    Column('found', ('{o}.detected',), '{:.1f}'),
+    Column('rotation median (deg)', ('{o}.re_median_deg',), '{:.1f}'),
+    Column('translation median (mm)', ('{o}.te_median_mm',), '{:.1f}'),
+    Column('ADD(-S)', ('{o}.add_s_recall',)),
+    Column('5 cm / 5 deg', ('{o}.cm5deg5',)),
+    Column('2D projection 5 px', ('{o}.proj5px',)),
+)
+_DETECTION = (
+    Column('recall, visib >= 0.3', ('{d}.recall_iou50_visib30',)),
+    Column('recall, visib >= 0.1', ('{d}.recall_iou50',)),
+    Column('AP50', ('{d}.ap50',)),
+)
+
+# Bench rows: label, keys (median / p95 / max), format.
+_MS = ('median_ms', 'p95_ms', 'max_ms')
+
+
+def _stage(label: str, stage: str) -> tuple[str, tuple[str, ...], str]:
+    return (label, tuple(f'stages.{stage}.{s}' for s in _MS), '{:.2f}')
+
+
+_STAGES = (
+    _stage('image conversion (Image -> array)', 'image_conversion'),
+    _stage('detector (640x480 -> 480x352)', 'detector'),
+    _stage('crop + Q-Net, all objects (1 batch)', 'qnet'),
+    _stage('ranking the 8 hypotheses', 'hypothesis_selection'),
+    _stage('Bounding Box Equation, per object (3 hypotheses each)', 'bbox_equation_per_object'),
+    _stage('refinement, the frame', 'refinement'),
+    _stage('refinement, per object', 'refinement_per_object'),
+    _stage('tracking refinement, the frame', 'tracking'),
+    _stage('tracking refinement, per object', 'tracking_per_object'),
+    _stage('message building', 'messages'),
+    ('**whole frame**', tuple(f'total.{s}' for s in _MS), '{:.2f}'),
+    ('frames per second', ('fps',), '{:.1f}'),
+    ('objects per frame', ('objects_per_frame',), '{:.2f}'),
+)
+
+TABLES = {
+    # README: one accuracy row, one speed row.
+    'readme_accuracy': RunsTable(
+        'README.md',
+        (_NETWORKS, _RECALL, _ROTATION, _ADD, _CM5DEG5, _PROJ),
+        (('the full pipeline (detector boxes, defaults)', 'eval_detector'),)),
+    'readme_speed': RunsTable(
+        'README.md',
+        (Column('networks', ('detector_network', 'qnet_network'), '{}'),
+         Column('detector', ('stages.detector.median_ms',), '{:.1f}'),
+         Column('crop + Q-Net', ('stages.qnet.median_ms',), '{:.1f}'),
+         Column('refinement per object', ('stages.refinement_per_object.median_ms',),
+                '{:.1f}'),
+         Column('whole frame, median / p95', ('total.median_ms', 'total.p95_ms'), '{:.1f}'),
+         Column('whole frame, all objects, p95', ('all_objects.total.p95_ms',), '{:.1f}')),
+        (('`bbpose bench`, defaults, median ms', 'bench'),)),
+    # docs/results.md
+    'results_runs': RunsTable(
+        'docs/results.md',
+        (_NETWORKS, _RECALL, _AP50, _ROTATION, _TRANSLATION, _ADD, _CM5DEG5, _PROJ), _RUNS),
+    'results_precision': RunsTable(
+        'docs/results.md',
+        (_NETWORKS, _RECALL, _AP50, _ROTATION, _ADD, _CM5DEG5, _PROJ),
+        (('detector boxes, refined, `auto`', 'eval_detector'),
+         ('detector boxes, refined, `fp32`', 'eval_detector_fp32'),
+         ('ground-truth boxes, refined, `auto`', 'eval_gt'),
+         ('ground-truth boxes, refined, `fp32`', 'eval_gt_fp32'),
+         ('ground-truth boxes, not refined, `auto`', 'eval_gt_norefine'),
+         ('ground-truth boxes, not refined, `fp32`', 'eval_gt_norefine_fp32'))),
+    'results_detector': ObjectsTable('docs/results.md', 'eval_detector',
+                                     _DETECTION + _PER_OBJECT[1:]),
+    'results_detector_norefine': ObjectsTable('docs/results.md', 'eval_detector_norefine',
+                                              _DETECTION + _PER_OBJECT[1:]),
+    'results_detector_dense': ObjectsTable(
+        'docs/results.md', 'eval_detector_dense',
+        _PER_OBJECT[1:] + (Column('Q-Net alone: ADD(-S) / 5 cm 5 deg / proj',
+                                  ('{o}.add_s_recall', '{o}.cm5deg5', '{o}.proj5px'),
+                                  report='eval_detector'),)),
+    'results_gt': ObjectsTable('docs/results.md', 'eval_gt', _PER_OBJECT),
+    'results_gt_norefine': ObjectsTable('docs/results.md', 'eval_gt_norefine', _PER_OBJECT),
+    'results_bbox_equation': ObjectsTable('docs/results.md', 'eval_gt_gt_norefine',
+                                          _PER_OBJECT),
+    # docs/refinement.md
+    'refinement_basin': ListTable(
+        'docs/refinement.md', 'eval_gt_gt_sweep', 'sweep',
+        Column('start: deg / mm off the truth', ('deg', 'mm'), '{:.0f}'),
+        (Column('5 cm / 5 deg', ('mean.cm5deg5',)), Column('ADD(-S)', ('mean.add_s_recall',)),
+         Column('rotation median (deg)', ('mean.re_median_deg',), '{:.1f}'))),
+    'refinement_confidence': ListTable(
+        'docs/refinement.md', 'eval_detector', 'confidence',
+        Column('minimum score', ('min_confidence',), '{:.1f}'),
+        (Column('poses kept', ('kept',), '{:.2f}'),
+         Column('kept passing ADD(-S)', ('add_s_precision',)),
+         Column('kept within 5 cm / 5 deg', ('cm5deg5_precision',)))),
+    # docs/performance.md
+    'performance_stages': StagesTable(
+        'docs/performance.md', _STAGES,
+        (('detector mode', 'bench', ''), ('all objects', 'bench', 'all_objects.'),
+         ('tracked frame', 'bench', 'tracking.'),
+         ('all objects, fp32', 'bench_fp32', 'all_objects.'))),
+    'performance_budgets': StagesTable(
+        'docs/performance.md',
+        tuple((name, (f'budgets.{name}.value', f'budgets.{name}.limit',
+                      f'budgets.{name}.met'), '{:.2f}')
+              for name in ('detector', 'qnet_all_objects', 'bbox_equation_per_object',
+                           'refinement_per_object', 'tracking_per_object',
+                           'frame_all_objects_p95', 'frame_tracking_p95')),
+        (('`auto`: ms / limit / met', 'bench', ''), ('`fp32`', 'bench_fp32', '')),
+        first='budget'),
+    'performance_graph': RunsTable(
+        'docs/performance.md',
+        (Column('publish -> last pose: median / p95 / max',
+                ('latency.median_ms', 'latency.p95_ms', 'latency.max_ms'), '{:.1f}'),
+         Column('publish -> markers: p95', ('answer_latency.p95_ms',), '{:.1f}'),
+         Column('answered / published', ('frames.answered', 'frames.published'), '{:.0f}'),
+         Column('node CPU (% of a core)', ('node.cpu_percent',), '{:.0f}'),
+         Column('node RSS start / end (MB)', ('node.rss_start_mb', 'node.rss_end_mb'),
+                '{:.0f}'),
+         Column('RSS growth (%)', ('node.rss_growth_percent',), '{:+.1f}')),
+        (('30 Hz for 60 s, one inference thread', 'bench_graph'),)),
+}
