@@ -193,7 +193,8 @@ PARAMETERS = {
         True, 'Publish one /tf transform per pose: image frame_id -> <tf_prefix><object> '
         '(<object>_<k> for the k-th further instance).', 'frame'),
     'tf_prefix': ParameterSpec(
-        '', 'Prefix of the TF child frame names (e.g. bbpose/); empty: the object names.',
+        '~/', 'Prefix of the TF child frames and Detection3D ids; a leading ~/ stands for the '
+        "node's name and a slash (bbpose_node/ape); empty: the bare object names.",
         'frame', check=_check_tf_prefix),
     'max_image_pixels': ParameterSpec(
         33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
