@@ -211,6 +211,28 @@ def _empty_frame_id(image, info):
     image.header.frame_id = info.header.frame_id = ''
 
 
+def _other_frame_id(image, info):
+    info.header.frame_id = 'another_camera_optical_frame'
+
+
+def _late_camera_info(client, image, info):
+    """
+    Publish the image, the next one 0.2 s later, then each CameraInfo 0.25 s after its image.
+
+    Each CameraInfo comes after the next image (5 Hz, 0.25 s late): both images wait.
+    """
+    following = deserialize_message(serialize_message(image), Image)
+    following_info = deserialize_message(serialize_message(info), CameraInfo)
+    for message in (following, following_info):
+        message.header.stamp.nanosec = 200_000_000
+    for message, publisher, wait_s in ((image, client.image, 0.2),
+                                       (following, client.image, 0.05),
+                                       (info, client.info, 0.2),
+                                       (following_info, client.info, 0.0)):
+        publisher.publish(message)
+        client.spin_until(lambda: False, timeout_s=wait_s)
+
+
 def _no_camera_info(client, image, info):
     """Publish images without their CameraInfo for 5 s (5 Hz; stamps 0.04 s apart)."""
     for k in range(25):
@@ -284,6 +306,11 @@ KINDS = {
                                     log=('WARN', 'header.stamp', 'ahead')),
     'empty frame_id': Kind(_empty_frame_id, answered=True, counter='frame_id_empty',
                            log=('WARN', 'header.frame_id')),
+    'image and CameraInfo frame_ids differing': Kind(
+        _other_frame_id, answered=True, counter='frame_id_mismatch',
+        log=('WARN', 'differs from its camera_info', 'another_camera_optical_frame')),
+    'CameraInfo 0.25 s late, after the next image': Kind(None, answered=True,
+                                                         send=_late_camera_info),
     'CameraInfo stamp 0.5 s off': Kind(None, counter='unpaired',
                                        log=('WARN', 'sync_slop', 'differs by 0.500 s'),
                                        send=lambda client, image, info: (
@@ -297,6 +324,9 @@ KINDS = {
     'parameter of a wrong type at run time': Kind(
         None, counter='parameters_refused', log=('WARN', 'parameter score_threshold'),
         send=_parameter('score_threshold', 'high')),
+    'unknown parameter name at run time': Kind(
+        None, counter='parameters_refused', log=('WARN', 'parameter no_such_parameter'),
+        send=_parameter('no_such_parameter', 1)),
     'parameter out of range at run time': Kind(
         None, counter='parameters_refused', log=('WARN', 'parameter max_instances'),
         send=_parameter('max_instances', 1000)),

@@ -16,17 +16,19 @@
 bbpose_node as a managed node, driven through its lifecycle and parameter services.
 
 One node (``autostart: false``) serves the module; the tests run in file order, each
-starting from the state the previous one left.
+starting from the state the previous one left. In each state the transitions it does not
+have are asked for by id: refused, and the node lives on in its state.
 """
 
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from test_ros_support import GraphClient, NodeLog, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
@@ -41,6 +43,15 @@ from bbpose_ros.ros.diagnostics import counts_from_status
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
 REPUBLISH_S = 2.0   # seconds between publications of a frame not answered yet
+SECOND = 1_000_000_000
+# The transitions by id: those each state does not have.
+INVALID_IDS = {'unconfigured': (Transition.TRANSITION_CLEANUP, Transition.TRANSITION_ACTIVATE,
+                                Transition.TRANSITION_DEACTIVATE),
+               'inactive': (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_DEACTIVATE),
+               'active': (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE,
+                          Transition.TRANSITION_CLEANUP),
+               'finalized': (Transition.TRANSITION_CONFIGURE,
+                             Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)}
 
 
 @pytest.fixture(scope='module')
@@ -117,6 +128,18 @@ def answered(client):
     return answer()
 
 
+def invalid_ids_refused(client, node, log):
+    """Ask for each transition id the current state has not; each refused, state kept."""
+    now = state(client)
+    for transition_id in INVALID_IDS[now]:
+        log.mark()
+        assert not transition(client, transition_id), (now, transition_id)
+        assert log.wait_for('WARN', 'change_state refused', f'id {transition_id}'), log.path
+        assert state(client) == now
+    node.check_alive()
+    return True
+
+
 def reported(markers):
     """Return the object names of a MarkerArray's boxes."""
     return {m.ns for m in markers.markers if m.type == Marker.LINE_LIST}
@@ -148,6 +171,7 @@ def test_starts_unconfigured_without_topics(graph):
     assert client.image.get_subscription_count() == 0
     assert client.node.count_publishers(MARKERS) == 0
     node.check_alive()
+    assert invalid_ids_refused(client, node, graph[2])
 
 
 def test_a_failed_configure_gives_its_reason_and_stays_unconfigured(graph):
@@ -171,6 +195,7 @@ def test_configure_loads_and_makes_publishers_without_serving(graph):
     # Lifecycle publishers exist from configure on; they publish once active.
     assert client.spin_until(lambda: client.node.count_publishers(MARKERS) == 1)
     assert client.received[MARKERS] == []
+    assert invalid_ids_refused(client, *graph[1:])
 
 
 def test_activate_serves_and_deactivate_stops(graph):
@@ -180,10 +205,14 @@ def test_activate_serves_and_deactivate_stops(graph):
     assert client.spin_until(lambda: client.image.get_subscription_count() > 0
                              and client.node.count_publishers(MARKERS) > 0)
     assert answered(client)
+    assert invalid_ids_refused(client, *graph[1:])
     assert transition(client, Transition.TRANSITION_DEACTIVATE)
     assert state(client) == 'inactive'
     assert client.spin_until(lambda: client.image.get_subscription_count() == 0)
     assert client.node.count_publishers(MARKERS) == 1
+    # The last answer's boxes are cleared: nothing answers them any more.
+    assert client.spin_until(lambda: [m.action for m in client.received[MARKERS][-1].markers]
+                             == [Marker.DELETEALL])
 
 
 def test_activate_again_after_deactivate(graph):
@@ -191,6 +220,67 @@ def test_activate_again_after_deactivate(graph):
     assert transition(client, Transition.TRANSITION_ACTIVATE)
     assert client.spin_until(lambda: client.image.get_subscription_count() > 0)
     assert answered(client)
+
+
+@pytest.mark.slow
+def test_late_camera_infos_still_pair_their_images(graph):
+    """5 Hz, each CameraInfo 0.25 s after its image (after the next image): none unpaired."""
+    client, node, log = graph
+    before = last_counts(client)
+    image, info = client.pair
+    client.stamp_s += 10
+    stamps = [client.stamp_s * SECOND + k * SECOND // 5 for k in range(10)]
+    events = sorted([(k * 0.2, 0, k) for k in range(10)]
+                    + [(k * 0.2 + 0.25, 1, k) for k in range(10)])
+    start = time.monotonic()
+    for at_s, is_info, k in events:
+        client.spin_until(lambda: time.monotonic() - start >= at_s, timeout_s=1.0)
+        message = info if is_info else image
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamps[k], SECOND)
+        (client.info if is_info else client.image).publish(message)
+    client.stamp_s += 10
+
+    def settled():
+        counts = latest_counts(client)
+        return counts.get('received', 0) >= before['received'] + 10 and \
+            counts['answered'] + counts['superseded'] >= \
+            before['answered'] + before['superseded'] + 10
+    assert client.spin_until(settled), (before, latest_counts(client))
+    assert latest_counts(client)['unpaired'] == before['unpaired']
+    node.check_alive()
+
+
+def last_counts(client):
+    """Return the counters of the next /diagnostics status."""
+    client.received['/diagnostics'].clear()
+    client.spin_until(lambda: client.received['/diagnostics'])
+    return latest_counts(client)
+
+
+@pytest.mark.slow
+def test_a_starved_node_stays_warn_in_diagnostics(graph):
+    """A publisher whose QoS keeps its images away: WARN in every report while it lasts."""
+    client, node, _ = graph
+    qos = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.BEST_EFFORT)
+    starved = client.node.create_publisher(Image, topics.IMAGE_TOPIC, qos)
+    try:
+        starved.publish(client.pair[0])
+        client.received['/diagnostics'].clear()
+        assert client.spin_until(lambda: any(
+            m.status[0].level == DiagnosticStatus.WARN for m in client.received['/diagnostics']))
+        first = next(k for k, m in enumerate(client.received['/diagnostics'])
+                     if m.status[0].level == DiagnosticStatus.WARN)
+        client.spin_until(lambda: False, timeout_s=6.0)
+        levels = [m.status[0].level for m in client.received['/diagnostics'][first:]]
+        assert len(levels) >= 5 and set(levels) == {DiagnosticStatus.WARN}, levels
+        assert 'no image on' in client.received['/diagnostics'][-1].status[0].message
+    finally:
+        client.node.destroy_publisher(starved)
+    assert answered(client)                     # images again: the reports recover
+    client.received['/diagnostics'].clear()
+    assert client.spin_until(lambda: any(m.status[0].level == DiagnosticStatus.OK
+                                         for m in client.received['/diagnostics']))
+    node.check_alive()
 
 
 def set_and_rebuild(client, log, name, value):
@@ -219,12 +309,13 @@ def test_a_bad_run_time_value_is_refused_with_its_reason(graph):
     for name, value, words in [('objects', ['teapot'], 'teapot'),
                                ('dataset_dir', '/tmp', 'while the node is unconfigured'),
                                ('score_threshold', 'high', 'Wrong parameter type'),
-                               ('max_instances', 0, 'out of range')]:
+                               ('max_instances', 0, 'out of range'),
+                               ('no_such_parameter', 1, 'does not exist')]:
         result = set_parameter(client, name, value)
         assert not result.successful and words in result.reason, result.reason
         assert log.wait_for('WARN', 'set refused', f'parameter {name}'), log.path
     assert client.spin_until(lambda: latest_counts(client).get('parameters_refused', 0)
-                             >= before + 4)
+                             >= before + 5)
     assert reported(answered(client)) == {'driller'}
     node.check_alive()
 
@@ -238,4 +329,5 @@ def test_cleanup_then_shutdown(graph):
     assert last_status(client, lifecycle_state='unconfigured') is not None
     assert transition(client, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
     assert state(client) == 'finalized'
-    node.check_alive()
+    assert last_status(client, lifecycle_state='finalized') is not None
+    assert invalid_ids_refused(client, *graph[1:])

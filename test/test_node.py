@@ -209,10 +209,15 @@ def test_detections_and_tf_carry_the_poses_of_the_pose_topics(graph, bag):
                    for d in array.detections)
         tf = transforms[stamp].transforms
         assert {t.header.frame_id for t in tf} == {frame_id}
-        assert sorted((t.child_frame_id, (t.transform.translation.x, t.transform.translation.y,
-                                          t.transform.translation.z, t.transform.rotation.x,
-                                          t.transform.rotation.y, t.transform.rotation.z,
-                                          t.transform.rotation.w)) for t in tf) == stamped
+        # The children are prefixed with the node's name by default (tf_prefix '~/').
+        assert sorted((t.child_frame_id.removeprefix(f'{OUT[1:]}/'), (
+            t.transform.translation.x, t.transform.translation.y, t.transform.translation.z,
+            t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+            t.transform.rotation.w)) for t in tf) == stamped
+        assert all(t.child_frame_id.startswith(f'{OUT[1:]}/') for t in tf)
+        # Each Detection3D is named as its TF frame and reports its spread.
+        assert sorted(d.id for d in array.detections) == sorted(t.child_frame_id for t in tf)
+        assert all(min(d.results[0].pose.covariance[::7]) > 0 for d in array.detections)
 
 
 def test_marker_array_structure(graph):

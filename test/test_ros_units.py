@@ -40,7 +40,7 @@ from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
-from bbpose_ros.ros.pairing import LatestSlot, StampPairer
+from bbpose_ros.ros.pairing import LatestSlot, NEWER_PAIRED, Pairing, QUEUE_FULL, StampPairer
 from bbpose_ros.ros.params import APPLIES, check_value, declare_parameters, PARAMETERS
 from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
 from bbpose_ros.ros.params import TRACKING_OPTIONS
@@ -51,33 +51,63 @@ SECOND = 1_000_000_000
 
 def test_pairs_by_stamp_within_slop_in_either_order():
     pairer = StampPairer()
-    assert pairer.add_image(5 * SECOND, 'image5', 0.01) == (None, None)
-    assert pairer.add_info(7 * SECOND, 'info7', 0.01) is None        # other stamp: no pair
-    assert pairer.add_info(5 * SECOND + 5_000_000, 'info5', 0.01) == ('image5', 'info5')
-    assert pairer.add_image(7 * SECOND, 'image7', 0.01) == (('image7', 'info7'), None)
-    assert pairer.waiting is None
+    assert pairer.add_image(5 * SECOND, 'image5', 0.01) == Pairing()
+    assert pairer.add_info(7 * SECOND, 'info7', 0.01) == Pairing()     # other stamp: no pair
+    assert pairer.add_info(5 * SECOND + 5_000_000, 'info5', 0.01) == Pairing(
+        pairs=[('image5', 'info5')])
+    assert pairer.add_image(7 * SECOND, 'image7', 0.01) == Pairing(pairs=[('image7', 'info7')])
+    assert pairer.waiting == []
 
 
-def test_a_newer_unpaired_image_displaces_the_waiting_one():
+def test_images_wait_in_a_queue_for_late_camera_infos():
+    # 5 Hz, each CameraInfo 0.25 s late: the next image arrives before it, and both pair.
     pairer = StampPairer()
-    pairer.add_image(1 * SECOND, 'old', 0.01)
-    assert pairer.add_image(2 * SECOND, 'new', 0.01) == (None, 'old')
-    assert pairer.take_waiting() == 'new' and pairer.waiting is None
+    pairs, dropped = [], []
+    events = sorted([(k * 0.2, 'image', k) for k in range(25)]
+                    + [(k * 0.2 + 0.25, 'info', k) for k in range(25)])
+    for _, kind, k in events:
+        offer = pairer.add_image if kind == 'image' else pairer.add_info
+        pairing = offer(k * SECOND // 5, f'{kind}{k}', 0.01)
+        pairs += pairing.pairs
+        dropped += pairing.dropped
+    assert pairs == [(f'image{k}', f'info{k}') for k in range(25)] and dropped == []
 
 
-def test_a_paired_newer_image_displaces_the_waiting_one():
+def test_a_newer_image_paired_first_drops_the_older_waiting_ones():
     pairer = StampPairer()
-    pairer.add_info(2 * SECOND, 'info2', 0.01)
     pairer.add_image(1 * SECOND, 'image1', 0.01)
-    assert pairer.add_image(2 * SECOND, 'image2', 0.01) == (('image2', 'info2'), 'image1')
-    assert pairer.add_info(1 * SECOND, 'info1', 0.01) is None     # image1 stays dropped
+    pairer.add_image(2 * SECOND, 'image2', 0.01)
+    assert pairer.waiting == ['image1', 'image2']
+    assert pairer.add_info(2 * SECOND, 'info2', 0.01) == Pairing(
+        pairs=[('image2', 'info2')], dropped=[('image1', NEWER_PAIRED)])
+    assert pairer.add_info(1 * SECOND, 'info1', 0.01) == Pairing()   # never out of order
+    pairer.add_image(3 * SECOND, 'image3', 0.01)
+    pairer.add_info(4 * SECOND, 'info4', 0.01)
+    assert pairer.add_image(4 * SECOND, 'image4', 0.01) == Pairing(
+        pairs=[('image4', 'info4')], dropped=[('image3', NEWER_PAIRED)])
+
+
+def test_the_waiting_queue_is_bounded_in_length_and_time():
+    now = [0.0]
+    pairer = StampPairer(max_waiting=3, clock=lambda: now[0])
+    for k in range(3):
+        assert pairer.add_image(k * SECOND, k, 0.01) == Pairing()
+    assert pairer.add_image(3 * SECOND, 3, 0.01) == Pairing(dropped=[(0, QUEUE_FULL)])
+    now[0] = 4.0
+    assert pairer.add_image(4 * SECOND, 4, 0.01) == Pairing(dropped=[(1, QUEUE_FULL)])
+    now[0] = 5.5
+    assert pairer.expire(5.0) == [2, 3] and pairer.waiting == [4]
 
 
 def test_negative_slop_takes_the_latest_info():
     pairer = StampPairer()
     pairer.add_info(1 * SECOND, 'first', -1.0)
     pairer.add_info(2 * SECOND, 'latest', -1.0)
-    assert pairer.add_image(50 * SECOND, 'image', -1.0) == (('image', 'latest'), None)
+    assert pairer.add_image(50 * SECOND, 'image', -1.0) == Pairing(pairs=[('image', 'latest')])
+    pairer = StampPairer()                         # images before any CameraInfo wait for one
+    pairer.add_image(1 * SECOND, 'a', -1.0)
+    pairer.add_image(2 * SECOND, 'b', -1.0)
+    assert pairer.add_info(9 * SECOND, 'info', -1.0).pairs == [('a', 'info'), ('b', 'info')]
 
 
 def test_latest_slot_keeps_only_the_newest_item():

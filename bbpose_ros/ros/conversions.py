@@ -91,6 +91,16 @@ def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: Marke
     return stamped, markers(header, poses, pose_msgs)
 
 
+def delete_all_markers(header: Header) -> MarkerArray:
+    """
+    Return the MarkerArray that clears this node's markers (one DELETEALL).
+
+    Published when the node stops answering (deactivate, cleanup, shutdown), so the last
+    frame's boxes do not stay in RViz.
+    """
+    return MarkerArray(markers=[Marker(header=header, action=Marker.DELETEALL)])
+
+
 class MarkerArrayBuilder:
     """
     Makes a frame's visualization_msgs/MarkerArray from its PoseEstimates.

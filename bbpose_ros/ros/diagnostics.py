@@ -18,11 +18,16 @@ Frame counters and stage latencies of the node, as a diagnostic_msgs/DiagnosticA
 Latencies are milliseconds: the pipeline's stages (detector, rotation, translation, total)
 and ``node`` (image received -> results published), each as median and p95 over the last
 ``window`` frames; values are named ``<stage>_ms_median`` and ``<stage>_ms_p95``.
+
+Besides the counters, conditions that last (``InputWatch``: no image for a while, a
+publisher whose QoS keeps its messages away) hold the level at WARN for as long as they do,
+as diagnostic_updater's frequency status does.
 """
 
 from collections import Counter, deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import threading
+import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -32,8 +37,8 @@ from bbpose_ros.core.latency import timing_summary
 # Frames dropped, by reason (values frames_<reason>), and problems that dropped no frame,
 # each logged as a warning (values warnings_<kind>).
 DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'stamp_repeated', 'failed')
-WARNINGS = ('stamp_backwards', 'stamp_future', 'frame_id_empty', 'qos_incompatible',
-            'parameters_refused')
+WARNINGS = ('stamp_backwards', 'stamp_future', 'frame_id_empty', 'frame_id_mismatch',
+            'qos_incompatible', 'parameters_refused')
 COUNTERS = ('received', 'answered') + DROPS + WARNINGS
 _SUFFIX = '_ms_'
 
@@ -57,14 +62,15 @@ class NodeStats:
         with self._lock:
             self._timings.append(dict(timings_ms))
 
-    def status(self, name: str, state: str = 'active',
-               failure: str | None = None) -> DiagnosticStatus:
+    def status(self, name: str, state: str = 'active', failure: str | None = None,
+               conditions: Sequence[str] = ()) -> DiagnosticStatus:
         """
         Make a DiagnosticStatus of the counters, latencies and the node's lifecycle state.
 
-        WARN when frames were dropped or warnings counted since the previous status; ERROR
-        with the reason when the last lifecycle transition failed (``failure``).
-        ``lifecycle_state`` is one of unconfigured, inactive, active.
+        WARN when frames were dropped or warnings counted since the previous status, or
+        while one of ``conditions`` (texts, ``InputWatch.conditions``) holds; ERROR with
+        the reason when the last lifecycle transition failed (``failure``).
+        ``lifecycle_state`` is one of unconfigured, inactive, active, finalized.
         """
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
@@ -76,6 +82,8 @@ class NodeStats:
                 level = DiagnosticStatus.WARN
                 message += f', {now - before} {what} since the last report'
         self._reported = problems
+        for condition in conditions:
+            level, message = DiagnosticStatus.WARN, f'{message}; {condition}'
         if state != 'active':
             message = f'{state}; {message}'
         if failure is not None:
@@ -87,6 +95,69 @@ class NodeStats:
                    for stage, stats in summary.items() for stat, ms in stats.items()]
         return DiagnosticStatus(level=level, name=name, message=message,
                                 hardware_id='', values=values)
+
+
+class InputWatch:
+    """
+    Conditions of the node's input that last: no image for ``stale_s``, an incompatible QoS.
+
+    ``start`` (activate) starts the clock; each image restarts it and ends an incompatible
+    publisher's condition (images arrive again); ``stop`` (deactivate) ends both.
+
+    Args:
+        stale_s: seconds without an image, while serving, before it is a condition.
+        clock: monotonic clock in seconds (replaceable in tests).
+
+    """
+
+    def __init__(self, stale_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.stale_s = stale_s
+        self._clock = clock
+        self._last_s: float | None = None        # None: not serving
+        self._incompatible: str | None = None
+
+    def start(self) -> None:
+        """Start watching: the node serves from now on."""
+        self._last_s, self._incompatible = self._clock(), None
+
+    def stop(self) -> None:
+        """Stop watching: the node takes no input."""
+        self._last_s = self._incompatible = None
+
+    def image(self) -> None:
+        """Note an image: input arrives."""
+        if self._last_s is not None:
+            self._last_s, self._incompatible = self._clock(), None
+
+    def incompatible(self, text: str) -> None:
+        """Note an incompatible publisher; ``text`` says which and why."""
+        if self._last_s is not None:
+            self._incompatible = text
+
+    def conditions(self, topic: str) -> list[str]:
+        """Return the conditions holding now, as texts naming the image ``topic``."""
+        if self._last_s is None:
+            return []
+        held = [] if self._incompatible is None else [self._incompatible]
+        quiet_s = self._clock() - self._last_s
+        if quiet_s > self.stale_s:
+            held.append(f'no image on {topic} for {quiet_s:.0f} s')
+        return held
+
+
+def incompatible_qos_text(topic: str, policy: str, reliability: str) -> str:
+    """
+    Say that a publisher on ``topic`` offers QoS incompatible in ``policy``, and what to do.
+
+    Only the policy that differs is named: the node's ``qos_reliability`` (now
+    ``reliability``) for the reliability policy, the publisher's QoS for any other (this
+    node's subscriptions are volatile, with no deadline and automatic liveliness).
+    """
+    fix = (f'set parameter qos_reliability (now {reliability}) to match it, or the '
+           "publisher's reliability" if policy == 'reliability'
+           else f"change the publisher's {policy}")
+    return (f'a publisher on {topic} offers QoS incompatible with this subscription '
+            f'({policy} policy): nothing it sends arrives; {fix}')
 
 
 def diagnostics_message(stamp: Time, statuses: Iterable[DiagnosticStatus]) -> DiagnosticArray:

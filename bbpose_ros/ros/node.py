@@ -24,8 +24,9 @@ pipeline and the publishers. With ``autostart`` (default) the node configures an
 itself at start and exits with code 1 when it cannot. ``/diagnostics`` is published in
 every state.
 
-Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8) and
-``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within ``sync_slop``.
+Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, rgba8, bgra8, mono8 and the four
+8-bit Bayer patterns) and ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp
+within ``sync_slop``; a few images wait for a late CameraInfo (``pairing.StampPairer``).
 Publications, stamped with the image's header (stamp and frame_id):
 
 * ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
@@ -33,18 +34,22 @@ Publications, stamped with the image's header (stamp and frame_id):
 * ``~/detections`` (vision_msgs/Detection3DArray), once per answered frame while it has
   subscribers, one Detection3D per pose;
 * ``/tf`` (tf2_msgs/TFMessage), with ``publish_tf`` and while it has subscribers: one
-  transform per pose, image frame -> ``<tf_prefix><object>`` (``detections.instance_names``);
-* ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame;
+  transform per pose, image frame -> ``<tf_prefix><object>`` (``detections.frame_names``;
+  the default prefix ``~/`` is the node's name);
+* ``~/markers`` (visualization_msgs/MarkerArray), once per answered frame, and one
+  DELETEALL when the node stops answering;
 * ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
-* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz.
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz, WARN while no image came for
+  ``STALE_INPUT_S``.
 
 The subscription callbacks only decode and pair; a worker thread runs the pipeline on the
 newest pair, so frames arriving while it is busy replace each other instead of queueing. A
 run-time set of a ``pipeline`` parameter is checked in the parameter callback and built by
-a rebuild thread, off the executor: the node keeps taking and answering frames with the
-pipeline it has and swaps the new one in when it is ready (a build that fails sets the
-parameters back and says why). An image stamped before the previous one (a bag restarted,
-a camera reset) resets the tracker.
+``rebuild.PipelineRebuilder``, off the executor: the node keeps taking and answering frames
+with the pipeline it has and swaps the new one in when it is ready (a build that fails sets
+the parameters back and says why). An image stamped before the previous one (a bag
+restarted, a camera reset) resets the tracker. An invalid lifecycle transition, or a set of
+a parameter the node does not have, is refused with a reason and logged; the node lives on.
 """
 
 from collections.abc import Sequence
@@ -59,7 +64,7 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.event_handler import QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import ParameterException, ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState
 from rclpy.lifecycle import TransitionCallbackReturn
@@ -82,18 +87,24 @@ from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions, detections
-from bbpose_ros.ros.diagnostics import diagnostics_message, NodeStats
+from bbpose_ros.ros.diagnostics import diagnostics_message, incompatible_qos_text, InputWatch
+from bbpose_ros.ros.diagnostics import NodeStats
 from bbpose_ros.ros.node_pipeline import build_node_pipeline, NodePipeline
-from bbpose_ros.ros.pairing import LatestSlot, StampPairer
+from bbpose_ros.ros.pairing import LatestSlot, Pairing, StampPairer
 from bbpose_ros.ros.params import check_value, checked_options, declare_parameters, NODE_NAME
 from bbpose_ros.ros.params import NodeConfig, parameter_values, PARAMETERS, read_config
+from bbpose_ros.ros.rebuild import PipelineRebuilder
 from bbpose_ros.ros.throttle import KeyedThrottle
+from bbpose_ros.ros.transitions import guard_change_state
 
 DIAGNOSTICS_PERIOD_S = 1.0
 # An image waiting longer for its CameraInfo is dropped. Longer than a reliable writer's
 # repair of a lost sample (Fast DDS heartbeat period: 3 s), which a burst of large images
-# can make a CameraInfo wait for; a newer image displaces the waiting one anyway.
+# can make a CameraInfo wait for; a newer image that pairs drops the older waiting ones.
 UNPAIRED_TIMEOUT_S = 5.0
+# While serving, no image for this long is a WARN condition in /diagnostics (a publisher
+# with an incompatible QoS, a remap to the wrong topic, a camera that stopped).
+STALE_INPUT_S = 3.0
 # A stop waits this long for the worker to finish the frame in hand (one frame's work).
 WORKER_JOIN_TIMEOUT_S = 5.0
 # How far ahead of this node's clock an image stamp may be before it is reported: clocks of
@@ -130,12 +141,18 @@ class BBPoseNode(LifecycleNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         declare_parameters(self)
-        # Set by configure, freed by cleanup; swapped together by a run-time rebuild.
-        self.config: NodeConfig | None = None
-        self.pipeline: NodePipeline | None = None
+        guard_change_state(self, self.get_logger())
+        # Config and pipeline: set by configure, freed by cleanup, swapped by a rebuild.
+        self._rebuilder = PipelineRebuilder(
+            build=lambda config: build_node_pipeline(config, self.get_logger().info),
+            set_back=self._set_back, log=self.get_logger().info,
+            refuse=lambda names, text: self._warn('parameters_refused', names, text),
+            reason=_reason)
         self.failure: str | None = None          # the reason of the last failed transition
         self.stats = NodeStats()
+        self._watch = InputWatch(STALE_INPUT_S)
         self._throttle = KeyedThrottle()
+        self._finalized = False                  # shut down: no transition leaves it
         # Lifecycle publishers: made by configure, enabled by activate.
         self._pose_pubs: dict[str, LifecyclePublisher] = {}
         self._markers_pub: LifecyclePublisher | None = None
@@ -151,11 +168,8 @@ class BBPoseNode(LifecycleNode):
         self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
         self._stream = 0                          # backward stamp jumps seen
         self._rectifier = Rectifier()             # the worker's
-        # Run-time rebuilds: changes waiting for the rebuild thread, under the lock.
-        self._rebuild_lock = threading.Lock()
-        self._pending_changes: dict[str, Any] = {}
-        self._rebuilder: threading.Thread | None = None
-        self._generation = 0                      # configures so far: a rebuild's epoch
+        self._frame_id = ''                       # of the last frame answered
+        self._frame_ids_warned: set[tuple[str, str]] = set()
         self._diagnostics_pub: Publisher = self.create_publisher(
             DiagnosticArray, '/diagnostics', qos_profile_system_default)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
@@ -169,9 +183,8 @@ class BBPoseNode(LifecycleNode):
             pipeline = build_node_pipeline(config, self.get_logger().info)
         except Exception as err:  # noqa: B902 - a failed configure says why, whatever failed
             return self._fail('configure', _reason(err))
-        with self._rebuild_lock:
-            self.config, self.pipeline, self.failure = config, pipeline, None
-            self._generation += 1
+        self._rebuilder.install(config, pipeline)
+        self.failure = None
         self._pose_pubs = {}
         self._add_pose_publishers(config.objects)
         self._markers_pub = self.create_lifecycle_publisher(MarkerArray, '~/markers', 10)
@@ -191,6 +204,8 @@ class BBPoseNode(LifecycleNode):
         self._pairer = StampPairer()
         self._slot = LatestSlot()
         self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
+        self._frame_ids_warned = set()
+        self._watch.start()
         self._inputs = [
             self.create_subscription(cls, topic, callback, self.config.qos,
                                      event_callbacks=self._input_events(topic))
@@ -217,8 +232,9 @@ class BBPoseNode(LifecycleNode):
         return SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop serving and free everything, from whichever state."""
+        """Stop serving and free everything, from whichever state: finalized."""
         self._release()
+        self._finalized = True
         return SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -236,13 +252,20 @@ class BBPoseNode(LifecycleNode):
         self.get_logger().error(self.failure)
         return FAILURE
 
+    @property
+    def config(self) -> NodeConfig | None:
+        """Return the parameters the current pipeline was built from (None: unconfigured)."""
+        return self._rebuilder.config
+
+    @property
+    def pipeline(self) -> NodePipeline | None:
+        """Return the NodePipeline in use (None: unconfigured)."""
+        return self._rebuilder.pipeline
+
     def _release(self) -> None:
         """Stop serving, forget the pipeline (a rebuild under way is dropped), free topics."""
         self._stop_serving()
-        with self._rebuild_lock:
-            self.config = self.pipeline = None
-            self._pending_changes = {}
-            self._generation += 1
+        self._rebuilder.release()
         publishers = [*self._pose_pubs.values(), self._markers_pub, self._detections_pub,
                       self._tf_pub, self._debug_pub]
         for publisher in publishers:
@@ -258,8 +281,12 @@ class BBPoseNode(LifecycleNode):
         for subscription in self._inputs:
             self.destroy_subscription(subscription)
         self._inputs = []
+        self._watch.stop()
         self._slot.close()
         self._worker.join(WORKER_JOIN_TIMEOUT_S)
+        if self.context.ok():       # the last boxes go from RViz: nothing answers them now
+            header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self._frame_id)
+            self._markers_pub.publish(conversions.delete_all_markers(header))
 
     def _add_pose_publishers(self, names: Sequence[str]) -> None:
         """Create the pose publishers of new object names, enabled when serving."""
@@ -295,25 +322,36 @@ class BBPoseNode(LifecycleNode):
             reason = self._refusal(parameter)
             if reason is not None:
                 return SetParametersResult(successful=False, reason=reason)
-        changes = {p.name: p.value for p in parameters
-                   if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'}
-        if self.config is not None:
-            with self._rebuild_lock:      # what the pipeline has already needs no rebuild
-                changes = {name: value for name, value in changes.items()
-                           if value != self.config.values[name]
-                           or name in self._pending_changes}
-        if changes and self.config is not None:
+        changes = self._rebuilder.needed({
+            p.name: p.value for p in parameters
+            if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'})
+        if changes:
             try:
                 self._check_changes(changes)
             except InputError as err:
                 self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
                 return SetParametersResult(successful=False, reason=str(err))
             self._add_pose_publishers(changes.get('objects', ()))
-            self._request_rebuild(changes)
+            self._rebuilder.request(changes)
         return SetParametersResult(successful=True)
+
+    def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:
+        """
+        Refuse a set of a parameter this node does not have, naming it.
+
+        rclpy's check (which this overrides: it is the one rclpy asks) names none, an empty
+        list; the reason goes back in the SetParametersResult.
+        """
+        for parameter in parameter_list:
+            if not self.has_parameter(parameter.name):
+                raise UnknownParameterError(self._refusal(parameter))
+        super()._check_undeclared_parameters(parameter_list)
 
     def _refusal(self, parameter: Parameter) -> str | None:
         """Return why ``parameter``'s new value is refused now, or None."""
+        if not self.has_parameter(parameter.name):
+            return (f'parameter {parameter.name} does not exist: {self.get_name()} has '
+                    f'{", ".join(PARAMETERS)}')
         spec = PARAMETERS.get(parameter.name)
         if spec is None:       # rclpy's own (use_sim_time)
             return None
@@ -338,53 +376,15 @@ class BBPoseNode(LifecycleNode):
                 raise InputError(f'parameter objects: {", ".join(unknown)} not in '
                                  f'{self.config.dataset_dir} (known: {", ".join(known)})')
 
-    def _request_rebuild(self, changes: dict[str, Any]) -> None:
-        """Queue ``changes`` for the rebuild thread; start it unless it is running."""
-        with self._rebuild_lock:
-            self._pending_changes.update(changes)
-            if self._rebuilder is None:
-                self._rebuilder = threading.Thread(target=self._rebuild, name='bbpose_rebuild',
-                                                   daemon=True)
-                self._rebuilder.start()
-
-    def _rebuild(self) -> None:
-        """Rebuild thread: build the pipeline with the queued changes and swap it in."""
-        while True:
-            with self._rebuild_lock:
-                changes, self._pending_changes = self._pending_changes, {}
-                if not changes or self.config is None:
-                    self._rebuilder = None
-                    return
-                config, generation = self.config.updated(changes), self._generation
-            self.get_logger().info(f'rebuilding the pipeline for {", ".join(changes)}; '
-                                   'frames are answered with the current one meanwhile')
-            try:
-                pipeline = build_node_pipeline(config, self.get_logger().info)
-            except Exception as err:  # noqa: B902 - a failed rebuild sets the values back
-                self._undo(changes, _reason(err))
-                continue
-            with self._rebuild_lock:
-                if generation != self._generation:      # cleaned up or reconfigured meanwhile
-                    continue
-                self.config, self.pipeline = config, pipeline
-            self.get_logger().info(f'pipeline rebuilt for {", ".join(changes)}')
-
-    def _undo(self, changes: dict[str, Any], reason: str) -> None:
-        """Set the parameters of a failed rebuild back to the values the pipeline has."""
-        self._warn('parameters_refused', ' '.join(changes),
-                   f'rebuild for {", ".join(changes)} failed, the values are set back: '
-                   f'{reason}')
-        with self._rebuild_lock:
-            config = self.config
-            for name in changes:
-                self._pending_changes.pop(name, None)
-        if config is not None:
-            self.set_parameters([Parameter(name, value=config.values[name])
-                                 for name in changes])
+    def _set_back(self, values: dict[str, Any]) -> None:
+        """Set parameters back to ``values`` ({name: value}): a failed rebuild's."""
+        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
 
     @property
     def lifecycle_state(self) -> str:
-        """Return 'unconfigured', 'inactive' or 'active'."""
+        """Return 'unconfigured', 'inactive', 'active' or 'finalized'."""
+        if self._finalized:
+            return 'finalized'
         if self.config is None:
             return 'unconfigured'
         return 'active' if self._serving else 'inactive'
@@ -392,18 +392,17 @@ class BBPoseNode(LifecycleNode):
     def _input_events(self, topic: str) -> SubscriptionEventCallbacks:
         """Event callbacks of an input subscription: incompatible QoS is reported."""
         def on_incompatible_qos(event: QoSRequestedIncompatibleQoSInfo) -> None:
-            policy = QoSPolicyKind(event.last_policy_kind).name.lower()
+            text = incompatible_qos_text(
+                self._topic(topic), QoSPolicyKind(event.last_policy_kind).name.lower(),
+                self.get_parameter('qos_reliability').value)
+            self._watch.incompatible(text)
             for _ in range(max(1, event.total_count_change)):
-                self._warn('qos_incompatible', topic,
-                           f'a publisher on {self._topic(topic)} offers QoS incompatible with '
-                           f'this subscription ({policy} policy): nothing it sends arrives; '
-                           f'set parameter qos_reliability (now '
-                           f'{self.get_parameter("qos_reliability").value}) or qos_depth to '
-                           f"match it, or the publisher's QoS")
+                self._warn('qos_incompatible', topic, text)
         return SubscriptionEventCallbacks(incompatible_qos=on_incompatible_qos)
 
     def _on_image(self, message: Image) -> None:
         self.stats.count('received')
+        self._watch.image()
         received_s = time.perf_counter()
         header = message.header
         odd = self._stamps.check(stamp_to_ns(header.stamp),
@@ -429,20 +428,22 @@ class BBPoseNode(LifecycleNode):
             self._drop('bad_image', str(err),
                        f'image dropped (stamp {_stamp_text(header)}): {err}')
             return
-        pair, displaced = self._pairer.add_image(
-            stamp_to_ns(message.header.stamp), frame, self._sync_slop())
-        if displaced is not None:
-            self._drop_unpaired(displaced, 'a newer image arrived first')
-        if pair is not None:
-            self._hand_off(*pair)
+        self._take(self._pairer.add_image(stamp_to_ns(header.stamp), frame,
+                                          self._sync_slop()))
 
     def _on_camera_info(self, message: CameraInfo) -> None:
-        pair = self._pairer.add_info(stamp_to_ns(message.header.stamp), message,
-                                     self._sync_slop())
-        if pair is not None:
-            self._hand_off(*pair)
+        self._take(self._pairer.add_info(stamp_to_ns(message.header.stamp), message,
+                                         self._sync_slop()))
+
+    def _take(self, pairing: Pairing) -> None:
+        """Drop the images the pairer gave up, then hand its pairs to the worker."""
+        for frame, reason in pairing.dropped:
+            self._drop_unpaired(frame, reason)
+        for frame, info in pairing.pairs:
+            self._hand_off(frame, info)
 
     def _hand_off(self, frame: Frame, info: CameraInfo) -> None:
+        self._check_frame_ids(frame.header, info.header)
         height, width = frame.image_rgb.shape[:2]
         try:
             camera = camera_model(info, width, height, self.get_parameter('rectified').value)
@@ -453,15 +454,24 @@ class BBPoseNode(LifecycleNode):
         if self._slot.put((frame, camera)) is not None:
             self.stats.count('superseded')
 
+    def _check_frame_ids(self, image: Header, info: Header) -> None:
+        """Count a pair whose frame_ids differ (usually a wrong remap); log each such pair once."""
+        if image.frame_id == info.frame_id or not (image.frame_id and info.frame_id):
+            return
+        self.stats.count('frame_id_mismatch')
+        if (image.frame_id, info.frame_id) not in self._frame_ids_warned:
+            self._frame_ids_warned.add((image.frame_id, info.frame_id))
+            self.get_logger().warning(
+                f'image (stamp {_stamp_text(image)}) answered anyway: header.frame_id '
+                f'"{image.frame_id}" differs from its camera_info\'s "{info.frame_id}" (a '
+                f'wrong remap?); the poses are given in "{image.frame_id}"')
+
     def _on_timer(self) -> None:
         if self._serving:
-            waiting = self._pairer.waiting
-            if waiting is not None and \
-                    time.perf_counter() - waiting.received_s > UNPAIRED_TIMEOUT_S:
-                self._drop_unpaired(self._pairer.take_waiting(),
-                                    f'none came within {UNPAIRED_TIMEOUT_S} s')
+            for frame in self._pairer.expire(UNPAIRED_TIMEOUT_S):
+                self._drop_unpaired(frame, f'none came within {UNPAIRED_TIMEOUT_S} s')
         status = self.stats.status(f'{self.get_name()}: pose pipeline', self.lifecycle_state,
-                                   self.failure)
+                                   self.failure, self._watch.conditions(self._topic('image')))
         self._diagnostics_pub.publish(
             diagnostics_message(self.get_clock().now().to_msg(), [status]))
 
@@ -495,18 +505,20 @@ class BBPoseNode(LifecycleNode):
                  poses: Sequence[PoseEstimate], pipeline: NodePipeline) -> None:
         """Poses, detections, TF, then the markers that mark the frame answered, debug image."""
         stamped, markers = conversions.frame_messages(header, poses, pipeline.markers)
+        prefix = detections.resolve_prefix(self.get_parameter('tf_prefix').value,
+                                           self.get_fully_qualified_name())
         for name, message in stamped:
             self._pose_pubs[name].publish(message)
         # Made only for subscribers, as the debug image: rclpy messages are slow to build
         # (docs/experiments.md).
         pose_msgs = [message.pose for _, message in stamped]
         if self._detections_pub.get_subscription_count() > 0:
-            self._detections_pub.publish(pipeline.detections(header, poses, pose_msgs))
+            self._detections_pub.publish(pipeline.detections(header, poses, pose_msgs, prefix))
         if poses and header.frame_id and self.get_parameter('publish_tf').value and \
                 self._tf_pub.get_subscription_count() > 0:
-            self._tf_pub.publish(detections.transforms(
-                header, poses, pose_msgs, self.get_parameter('tf_prefix').value))
+            self._tf_pub.publish(detections.transforms(header, poses, pose_msgs, prefix))
         self._markers_pub.publish(markers)
+        self._frame_id = header.frame_id
         if self.get_parameter('publish_debug_image').value and \
                 self._debug_pub.get_subscription_count() > 0:
             self._debug_pub.publish(conversions.rgb_to_image(
@@ -540,6 +552,13 @@ class BBPoseNode(LifecycleNode):
 
     def _topic(self, name: str) -> str:
         return self.resolve_topic_name(name)
+
+
+class UnknownParameterError(ParameterNotDeclaredException):
+    """A set of a parameter the node does not have; its text is the reason given back."""
+
+    def __init__(self, reason: str) -> None:
+        Exception.__init__(self, reason)    # rclpy's own text names no parameter
 
 
 def _reason(err: BaseException) -> str:

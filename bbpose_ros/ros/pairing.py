@@ -15,65 +15,101 @@
 """
 Image / CameraInfo pairing by header stamp and the one-frame hand-off to the worker.
 
-Plain Python (no rclpy): stamps are integer nanoseconds, payloads are opaque. Only the
-newest image waits for its CameraInfo and only the newest pair waits for the worker, so a
-slow pipeline never builds a backlog.
+Plain Python (no rclpy): stamps are integer nanoseconds, payloads are opaque. A short queue
+of images waits for their CameraInfo (as message_filters' ApproximateTime keeps one per
+topic), so a CameraInfo that arrives after the next image still pairs its own; only the
+newest pair waits for the worker, so a slow pipeline never builds a backlog.
 """
 
 from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
 import threading
+import time
 from typing import Any
+
+# Why a waiting image was dropped (``Pairing.dropped``).
+NEWER_PAIRED = 'a newer image was paired first'
+QUEUE_FULL = 'the images waiting for a camera_info fill the queue'
+
+
+@dataclass
+class Pairing:
+    """
+    What offering an image or a CameraInfo did.
+
+    Attributes:
+        pairs: the (image, info) pairs it completed, oldest first.
+        dropped: the (image, reason) of waiting images it gave up, oldest first.
+
+    """
+
+    pairs: list[tuple[Any, Any]] = field(default_factory=list)
+    dropped: list[tuple[Any, str]] = field(default_factory=list)
 
 
 class StampPairer:
     """
     Pairs each image with the CameraInfo nearest in stamp, within a slop.
 
+    Images without a CameraInfo yet wait in arrival order. Frames never go out of order:
+    when an image pairs, the older images still waiting are dropped (``NEWER_PAIRED``).
+
     Args:
         info_history: how many recent CameraInfos are kept to pair late images with.
+        max_waiting: how many images may wait for their CameraInfo; a further one drops
+            the oldest (``QUEUE_FULL``).
+        clock: monotonic clock in seconds (replaceable in tests), for ``expire``.
 
     """
 
-    def __init__(self, info_history: int = 50) -> None:
+    def __init__(self, info_history: int = 50, max_waiting: int = 8,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self._infos = deque(maxlen=info_history)
-        self._waiting = None
+        self._waiting = deque()          # (stamp_ns, image, arrival_s), oldest first
+        self._max_waiting = max_waiting
+        self._clock = clock
 
-    def add_image(self, stamp_ns: int, image: Any,
-                  slop_s: float) -> tuple[tuple[Any, Any] | None, Any | None]:
+    def add_image(self, stamp_ns: int, image: Any, slop_s: float) -> Pairing:
         """
-        Offer an image; returns (pair or None, the image it displaced or None).
+        Offer an image: paired at once when its CameraInfo is here, else queued.
 
-        A pair is (image, info). An image without a CameraInfo yet waits; either way an
-        older waiting image is displaced, so frames never go out of order. ``slop_s`` < 0
-        pairs with the latest CameraInfo whatever its stamp.
+        ``slop_s`` < 0 pairs with the latest CameraInfo whatever its stamp.
         """
         info = self._match(stamp_ns, slop_s)
-        displaced = self.take_waiting()
         if info is not None:
-            return (image, info), displaced
-        self._waiting = (stamp_ns, image)
-        return None, displaced
+            return Pairing(pairs=[(image, info)], dropped=self._drop_waiting(len(self._waiting),
+                                                                             NEWER_PAIRED))
+        self._waiting.append((stamp_ns, image, self._clock()))
+        excess = len(self._waiting) - self._max_waiting
+        return Pairing(dropped=self._drop_waiting(max(0, excess), QUEUE_FULL))
 
-    def add_info(self, stamp_ns: int, info: Any, slop_s: float) -> tuple[Any, Any] | None:
-        """Store a CameraInfo; returns the (image, info) pair it completes, or None."""
+    def add_info(self, stamp_ns: int, info: Any, slop_s: float) -> Pairing:
+        """Store a CameraInfo; pair the waiting images it completes (older ones dropped)."""
         self._infos.append((stamp_ns, info))
-        if self._waiting is None:
-            return None
-        match = self._match(self._waiting[0], slop_s)
-        if match is None:
-            return None
-        image, self._waiting = self._waiting[1], None
-        return image, match
+        matches = [self._match(stamp, slop_s) for stamp, _, _ in self._waiting]
+        newest = max((k for k, match in enumerate(matches) if match is not None), default=-1)
+        pairing = Pairing()
+        for k in range(newest + 1):
+            _, image, _ = self._waiting.popleft()
+            if matches[k] is not None:
+                pairing.pairs.append((image, matches[k]))
+            else:
+                pairing.dropped.append((image, NEWER_PAIRED))
+        return pairing
+
+    def expire(self, timeout_s: float) -> list[Any]:
+        """Remove and return the images that waited longer than ``timeout_s``, oldest first."""
+        now = self._clock()
+        expired = []
+        while self._waiting and now - self._waiting[0][2] > timeout_s:
+            expired.append(self._waiting.popleft()[1])
+        return expired
 
     @property
-    def waiting(self) -> Any | None:
-        """Return the image waiting for a CameraInfo, or None."""
-        return None if self._waiting is None else self._waiting[1]
-
-    def take_waiting(self) -> Any | None:
-        """Remove and return the image waiting for a CameraInfo (None when there is none)."""
-        waiting, self._waiting = self.waiting, None
-        return waiting
+    def waiting(self) -> list[Any]:
+        """Return the images waiting for a CameraInfo, oldest first."""
+        return [image for _, image, _ in self._waiting]
 
     def nearest_offset_s(self, stamp_ns: int) -> float | None:
         """Return |stamp - nearest CameraInfo stamp| in seconds, or None with no CameraInfo."""
@@ -81,7 +117,10 @@ class StampPairer:
             return None
         return min(abs(stamp - stamp_ns) for stamp, _ in self._infos) * 1e-9
 
-    def _match(self, stamp_ns, slop_s):
+    def _drop_waiting(self, count: int, reason: str) -> list[tuple[Any, str]]:
+        return [(self._waiting.popleft()[1], reason) for _ in range(count)]
+
+    def _match(self, stamp_ns: int, slop_s: float) -> Any | None:
         if not self._infos:
             return None
         if slop_s < 0:
