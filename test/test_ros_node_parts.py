@@ -143,7 +143,7 @@ def test_the_qos_warning_names_only_the_policy_that_differs():
 class _Config:
     values: dict
 
-    def updated(self, changes):
+    def updated(self, changes, options):
         return _Config({**self.values, **changes})
 
 
@@ -168,12 +168,12 @@ def test_a_rebuild_swaps_config_and_pipeline_or_sets_the_values_back():
     assert rebuilder.needed({'objects': ['ape']}) == {}           # unconfigured
     rebuilder.install(_Config({'objects': ['ape']}), 'pipeline of ape')
     assert rebuilder.needed({'objects': ['ape']}) == {}           # what it has already
-    rebuilder.request({'objects': ['can']})
+    rebuilder.request({'objects': ['can']}, None)
     assert rebuilder.pipeline == 'pipeline of ape'                # held at the gate
     gate.set()
     assert _wait(lambda: rebuilder.pipeline == "pipeline of ['can']")
     assert rebuilder.config.values == {'objects': ['can']}
-    rebuilder.request({'objects': ['teapot']})
+    rebuilder.request({'objects': ['teapot']}, None)
     assert _wait(lambda: set_back)
     assert set_back == [{'objects': ['can']}] and 'no teapot' in refused[0]
     assert rebuilder.pipeline == "pipeline of ['can']"
@@ -186,7 +186,7 @@ def test_a_build_begun_before_a_cleanup_is_thrown_away():
     rebuilder = PipelineRebuilder(lambda config: gate.wait(10.0) and 'new', lambda v: None,
                                   log=lambda text: None, refuse=lambda names, text: None)
     rebuilder.install(_Config({'objects': ['ape']}), 'old')
-    rebuilder.request({'objects': ['can']})
+    rebuilder.request({'objects': ['can']}, None)
     rebuilder.release()
     rebuilder.install(_Config({'objects': ['ape']}), 'configured again')
     gate.set()

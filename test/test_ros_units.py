@@ -33,17 +33,17 @@ import yaml
 from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
-from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.inference.options import PipelineOptions, SETTINGS
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
-from bbpose_ros.core.pipeline.tracking import TrackingConfig
 from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, NEWER_PAIRED, Pairing, QUEUE_FULL, StampPairer
-from bbpose_ros.ros.params import APPLIES, check_value, declare_parameters, PARAMETERS
-from bbpose_ros.ros.params import parameter_values, read_config, read_params_file
-from bbpose_ros.ros.params import TRACKING_OPTIONS
+from bbpose_ros.ros.params import (APPLIES, check_value, checked_options, declare_parameters,
+                                   NODE_DEFAULTS,
+                                   parameter_values, PARAMETERS, read_config,
+                                   read_params_file)
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000
@@ -265,9 +265,13 @@ def test_declared_parameters_validate_and_set_qos(ros_context, lmo_root):
 
 def test_check_value_names_the_parameter_and_the_problem():
     check_value('score_threshold', 0.5)
+    check_value('score_threshold', 1.5)     # a setting's value is checked by its options
+    with pytest.raises(InputError, match=re.escape('parameter score_threshold: 1.5 is out of '
+                                                   'range [0.0, 1.0]')):
+        checked_options({**{n: s.default for n, s in PARAMETERS.items()},
+                         'score_threshold': 1.5})
     for name, value, words in [('score_threshold', 'high', 'is not of type double'),
                                ('score_threshold', 1, 'is not of type double'),
-                               ('score_threshold', 1.5, 'out of range [0.0, 1.0]'),
                                ('objects', [], 'at least one'),
                                ('objects', ['ape', 'ape'], 'ape listed more than once'),
                                ('qos_reliability', 'sometimes', 'not one of reliable'),
@@ -289,9 +293,6 @@ def test_the_yaml_documents_every_parameter_and_when_it_is_read():
                        and line.rstrip().endswith('.'))
         assert comment.rstrip().endswith(f'{spec.applies.capitalize()}.'), name
         check_value(name, values[name])
-    # The file shows the defaults (PipelineOptions' and the table's); it sets one other value.
-    assert {name for name, spec in PARAMETERS.items()
-            if values[name] != spec.default} == {'inference_threads'}
 
 
 def test_the_rviz_config_shows_the_node_outputs():
@@ -318,17 +319,25 @@ def test_stamp_checker_tells_repeated_backward_and_future_stamps():
     assert kind == FUTURE and '5.000 s ahead' in text
 
 
-def test_pipeline_parameters_are_pipeline_options_with_their_defaults():
+def test_every_setting_is_a_parameter_of_the_same_name_default_and_range():
     options = PipelineOptions()
+    settings = {name for name, spec in PARAMETERS.items() if spec.option}
+    # Every setting is a parameter: the node can set all that eval and bench can.
+    assert settings == {f.name for f in dataclasses.fields(PipelineOptions)}
+    # What shapes the pipeline at run time is a setting, but for the object list.
     pipeline = {name for name, spec in PARAMETERS.items() if spec.applies == 'pipeline'}
-    with_option = {name for name, spec in PARAMETERS.items() if spec.option is not None}
-    assert pipeline - {'objects'} - set(TRACKING_OPTIONS) <= with_option
-    for name in with_option:
-        assert PARAMETERS[name].default == getattr(options, PARAMETERS[name].option), name
-    # Every option is a parameter: the node can set all that eval and bench can.
-    assert {spec.option for spec in PARAMETERS.values() if spec.option} == \
-        {f.name for f in dataclasses.fields(PipelineOptions)}
-    # The tracking ones are TrackingConfig's fields.
-    fields = {f.name for f in dataclasses.fields(TrackingConfig)}
-    assert {o for o in TRACKING_OPTIONS.values() if o is not None} <= fields
+    assert pipeline - {'objects'} <= settings
+    for name in settings:
+        assert PARAMETERS[name].default == NODE_DEFAULTS.get(name, getattr(options, name)), name
+        assert PARAMETERS[name].value_range == SETTINGS[name].limits, name
+        assert PARAMETERS[name].description == SETTINGS[name].description, name
+
+
+def test_the_yaml_documents_the_declared_defaults():
+    values = yaml.safe_load((Path(__file__).parents[1] / 'config' / 'bbpose.yaml').read_text())
+    documented = values['/**']['ros__parameters']
+    assert list(documented) == list(PARAMETERS)
+    for name, spec in PARAMETERS.items():
+        assert documented[name] == spec.default, name
+        assert type(documented[name]) is type(spec.default), name
     assert {spec.applies for spec in PARAMETERS.values()} <= set(APPLIES)

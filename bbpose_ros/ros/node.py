@@ -53,7 +53,7 @@ a parameter the node does not have, is refused with a reason and logged; the nod
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import threading
 import time
 from typing import Any
@@ -82,6 +82,7 @@ from bbpose_ros.core.data.models import bop_object_ids
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import PoseEstimate
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
@@ -112,6 +113,25 @@ WORKER_JOIN_TIMEOUT_S = 5.0
 FUTURE_STAMP_TOLERANCE_NS = 1_000_000_000
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
+
+
+@dataclass(frozen=True)
+class SetVerdict:
+    """
+    What a parameter set comes to, judged once (``BBPoseNode._judge``).
+
+    Attributes:
+        names: the parameters set, in order.
+        reason: why the set is refused, or None.
+        changes: {name: value} of the ``pipeline`` parameters a rebuild must take.
+        options: the PipelineOptions of every parameter's value with the set's.
+
+    """
+
+    names: tuple[str, ...]
+    reason: str | None
+    changes: dict[str, Any] = field(default_factory=dict)
+    options: PipelineOptions | None = None
 
 
 @dataclass(frozen=True)
@@ -173,6 +193,7 @@ class BBPoseNode(LifecycleNode):
         self._diagnostics_pub: Publisher = self.create_publisher(
             DiagnosticArray, '/diagnostics', qos_profile_system_default)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+        self._verdict: SetVerdict | None = None   # of the set rclpy is making
         self.add_pre_set_parameters_callback(self._before_set_parameters)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -299,41 +320,51 @@ class BBPoseNode(LifecycleNode):
 
     def _before_set_parameters(self, parameters: list[Parameter]) -> list[Parameter]:
         """
-        Log and count each value the set will refuse, then let rclpy and the check run.
+        Judge a set once, log and count a refusal; ``_on_set_parameters`` gives the verdict.
 
-        rclpy refuses a wrong type or range before ``_on_set_parameters`` sees the value,
-        so this is the one place that hears of every refusal.
+        rclpy calls this first, then checks the values against the descriptors (refusing
+        there without calling ``_on_set_parameters``), so this is the one place that hears
+        of every refusal, and the one check of each value and of their combination.
         """
-        for parameter in parameters:
-            reason = self._refusal(parameter)
-            if reason is not None:
-                self._warn('parameters_refused', parameter.name, f'set refused: {reason}')
+        self._verdict = self._judge(parameters)
+        if self._verdict.reason is not None:
+            self._warn('parameters_refused', ' '.join(p.name for p in parameters),
+                       f'set refused: {self._verdict.reason}')
         return parameters
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """
-        Refuse a bad value with its reason; hand ``pipeline`` changes to the rebuild thread.
+        """Answer a set with its verdict; hand ``pipeline`` changes to the rebuild thread."""
+        verdict, self._verdict = self._verdict, None
+        if verdict is None or verdict.names != tuple(p.name for p in parameters):
+            verdict = self._judge(parameters)       # not seen by the pre-set callback
+        if verdict.reason is not None:
+            return SetParametersResult(successful=False, reason=verdict.reason)
+        if verdict.changes:
+            self._add_pose_publishers(verdict.changes.get('objects', ()))
+            self._rebuilder.request(verdict.changes, verdict.options)
+        return SetParametersResult(successful=True)
 
-        Everything that can be checked without building is checked here (each value, their
-        combinations, the object names against the dataset), so a set that is accepted
-        rarely fails to build.
+    def _judge(self, parameters: list[Parameter]) -> SetVerdict:
         """
+        Check a set: each value, then all values with the new ones as PipelineOptions.
+
+        Everything that can be checked without building is checked here (the object names
+        against the dataset too), so a set that is accepted rarely fails to build.
+        """
+        names = tuple(p.name for p in parameters)
         for parameter in parameters:
             reason = self._refusal(parameter)
             if reason is not None:
-                return SetParametersResult(successful=False, reason=reason)
-        changes = self._rebuilder.needed({
-            p.name: p.value for p in parameters
-            if p.name in PARAMETERS and PARAMETERS[p.name].applies == 'pipeline'})
-        if changes:
-            try:
-                self._check_changes(changes)
-            except InputError as err:
-                self._warn('parameters_refused', ' '.join(changes), f'set refused: {err}')
-                return SetParametersResult(successful=False, reason=str(err))
-            self._add_pose_publishers(changes.get('objects', ()))
-            self._rebuilder.request(changes)
-        return SetParametersResult(successful=True)
+                return SetVerdict(names, reason)
+        new = {p.name: p.value for p in parameters if p.name in PARAMETERS}
+        try:
+            options = checked_options({**parameter_values(self), **new})
+            self._check_objects(new.get('objects'))
+        except InputError as err:
+            return SetVerdict(names, str(err))
+        changes = self._rebuilder.needed({name: value for name, value in new.items()
+                                          if PARAMETERS[name].applies == 'pipeline'})
+        return SetVerdict(names, None, changes, options)
 
     def _check_undeclared_parameters(self, parameter_list: list[Parameter]) -> None:
         """
@@ -366,15 +397,15 @@ class BBPoseNode(LifecycleNode):
             return str(err)
         return None
 
-    def _check_changes(self, changes: dict[str, Any]) -> None:
-        """Raise InputError when ``changes`` do not go with the other parameters' values."""
-        checked_options({**parameter_values(self), **changes})
-        if 'objects' in changes:
-            known = bop_object_ids(self.config.dataset_dir)
-            unknown = [name for name in changes['objects'] if name not in known]
-            if unknown:
-                raise InputError(f'parameter objects: {", ".join(unknown)} not in '
-                                 f'{self.config.dataset_dir} (known: {", ".join(known)})')
+    def _check_objects(self, names: Sequence[str] | None) -> None:
+        """Raise InputError when object ``names`` (None: not set) are not in the dataset."""
+        if names is None or self.config is None:
+            return
+        known = bop_object_ids(self.config.dataset_dir)
+        unknown = [name for name in names if name not in known]
+        if unknown:
+            raise InputError(f'parameter objects: {", ".join(unknown)} not in '
+                             f'{self.config.dataset_dir} (known: {", ".join(known)})')
 
     def _set_back(self, values: dict[str, Any]) -> None:
         """Set parameters back to ``values`` ({name: value}): a failed rebuild's."""

@@ -230,10 +230,14 @@ class NodeConfig:
         """Return the names of the objects to report."""
         return tuple(self.values['objects'])
 
-    def updated(self, changes: dict[str, Any]) -> NodeConfig:
-        """Return this config with ``changes`` ({name: value}, ``pipeline`` ones) applied."""
-        values = {**self.values, **changes}
-        return replace(self, values=values, options=checked_options(values))
+    def updated(self, changes: dict[str, Any], options: PipelineOptions) -> NodeConfig:
+        """
+        Return this config with ``changes`` ({name: value}, ``pipeline`` ones) applied.
+
+        ``options`` are the PipelineOptions that ``checked_options`` made of the values with
+        the changes when they were set: checked then, not again.
+        """
+        return replace(self, values={**self.values, **changes}, options=options)
 
 
 def checked_options(values: dict[str, Any]) -> PipelineOptions:

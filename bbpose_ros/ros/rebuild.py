@@ -27,6 +27,7 @@ from collections.abc import Callable
 import threading
 from typing import Any
 
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.ros.node_pipeline import NodePipeline
 from bbpose_ros.ros.params import NodeConfig
 
@@ -60,6 +61,7 @@ class PipelineRebuilder:
         self._config: NodeConfig | None = None
         self._pipeline: NodePipeline | None = None
         self._pending: dict[str, Any] = {}
+        self._options: PipelineOptions | None = None      # those of the pending changes
         self._thread: threading.Thread | None = None
         self._generation = 0              # configures and cleanups so far
 
@@ -94,10 +96,16 @@ class PipelineRebuilder:
             return {name: value for name, value in changes.items()
                     if value != self._config.values[name] or name in self._pending}
 
-    def request(self, changes: dict[str, Any]) -> None:
-        """Queue ``changes`` ({name: value}) for the rebuild thread; start it unless running."""
+    def request(self, changes: dict[str, Any], options: PipelineOptions) -> None:
+        """
+        Queue ``changes`` ({name: value}) for the rebuild thread; start it unless running.
+
+        ``options`` are the checked PipelineOptions of every parameter's value with these
+        changes (and those queued before): the next build's.
+        """
         with self._lock:
             self._pending.update(changes)
+            self._options = options
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name='bbpose_rebuild',
                                                 daemon=True)
@@ -111,7 +119,8 @@ class PipelineRebuilder:
                 if not changes or self._config is None:
                     self._thread = None
                     return
-                config, generation = self._config.updated(changes), self._generation
+                config = self._config.updated(changes, self._options)
+                generation = self._generation
             self._log(f'rebuilding the pipeline for {", ".join(changes)}; frames are '
                       'answered with the current one meanwhile')
             try:
