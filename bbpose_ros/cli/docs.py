@@ -16,9 +16,12 @@
 
 import argparse
 from pathlib import Path
+import shlex
+import subprocess
 import sys
 
-from bbpose_ros.core.eval.doc_tables import TABLES
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.eval.doc_tables import REPORT_COMMANDS, TABLES
 from bbpose_ros.core.eval.report_tables import check_docs, write_docs
 
 # The repository (or source tree) this package sits in.
@@ -33,9 +36,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'README.md, docs/results.md and docs/performance.md from the reports of '
                     '`bbpose eval --json` and `bbpose bench --json` in docs/reports/ '
                     '(bbpose_ros/core/eval/doc_tables.py says which table shows what). With '
-                    '--check, write nothing and exit 1 naming each table that differs.')
+                    '--check, write nothing and exit 1 naming each table that differs. With '
+                    '--run, first remake reports by their commands (minutes each; on a '
+                    'quiet machine for the bench ones).')
     parser.add_argument('--check', action='store_true',
                         help='only compare; exit 1 if a table differs from its reports')
+    parser.add_argument('--run', nargs='*', metavar='REPORT', default=None,
+                        help='remake these reports (none named: all) by the command of each '
+                             f'({", ".join(REPORT_COMMANDS)}), then fill the tables')
     parser.add_argument('--root', type=Path, default=ROOT,
                         help='repository folder holding README.md, docs/ and docs/reports/ '
                              '(default %(default)s)')
@@ -44,6 +52,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check or write the docs' tables; returns 0, or 1 when a check or a marker fails."""
+    if args.run is not None:
+        run_reports(args.root, args.run or list(REPORT_COMMANDS))
     if args.check:
         problems = check_docs(args.root, TABLES)
         for problem in problems:
@@ -57,3 +67,23 @@ def run(args: argparse.Namespace) -> int:
     print(f'bbpose docs: rewrote {", ".join(written)}' if written
           else 'bbpose docs: every table was up to date')
     return 1 if problems else 0
+
+
+def run_reports(root: Path, names: list[str]) -> None:
+    """
+    Remake reports ``names`` by their commands, each with ``--json docs/reports/NAME.json``.
+
+    Raises InputError for an unknown name or a command that fails (its report untouched:
+    the tools write atomically).
+    """
+    unknown = [name for name in names if name not in REPORT_COMMANDS]
+    if unknown:
+        raise InputError(f'unknown report(s) {", ".join(unknown)}; known: '
+                         f'{", ".join(REPORT_COMMANDS)}')
+    for name in names:
+        words = shlex.split(REPORT_COMMANDS[name])
+        command = [sys.executable, '-m', 'bbpose_ros.cli.main', *words[1:], '--json',
+                   str(Path('docs') / 'reports' / f'{name}.json')]
+        print(f'bbpose docs: {name}: {REPORT_COMMANDS[name]}', flush=True)
+        if subprocess.run(command, cwd=root).returncode != 0:
+            raise InputError(f'report {name}: {REPORT_COMMANDS[name]} failed')

@@ -27,7 +27,8 @@ import sys
 from bbpose_ros import __version__
 from bbpose_ros.core.errors import InputError
 
-SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench', 'docs')
+SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench', 'docs',
+               'compare')
 
 
 def build_parser():

@@ -25,7 +25,7 @@ from bbpose_ros.core.eval.report_tables import (
     Column, ListTable, ObjectsTable, RunsTable, StagesTable)
 
 _EVAL = 'bbpose eval --dataset ../shared/datasets/lmo'
-_BENCH = 'bbpose bench --dataset ../shared/datasets/lmo --threads 1'
+_BENCH = 'bbpose bench --dataset ../shared/datasets/lmo --inference-threads 1'
 
 # report name -> the command that wrote it (with --json docs/reports/NAME.json).
 REPORT_COMMANDS = {
@@ -33,6 +33,8 @@ REPORT_COMMANDS = {
     'eval_detector_fp32': f'{_EVAL} --boxes detector --inference-precision fp32',
     'eval_detector_norefine': f'{_EVAL} --boxes detector --no-refine',
     'eval_detector_dense': f'{_EVAL} --boxes detector --pose-source dense+qnet',
+    'eval_detector_gtrot': f'{_EVAL} --boxes detector --rotation gt',
+    'eval_detector_gtrot_norefine': f'{_EVAL} --boxes detector --rotation gt --no-refine',
     'eval_gt': f'{_EVAL} --boxes gt',
     'eval_gt_fp32': f'{_EVAL} --boxes gt --inference-precision fp32',
     'eval_gt_norefine': f'{_EVAL} --boxes gt --no-refine',
@@ -65,6 +67,8 @@ _RUNS = (
     ('detector boxes, Q-Net, refined (the defaults)', 'eval_detector'),
     ('detector boxes, not refined', 'eval_detector_norefine'),
     ('detector boxes, `--pose-source dense+qnet`', 'eval_detector_dense'),
+    ('detector boxes, exact rotation, refined', 'eval_detector_gtrot'),
+    ('detector boxes, exact rotation, not refined', 'eval_detector_gtrot_norefine'),
     ('ground-truth boxes, Q-Net, refined', 'eval_gt'),
     ('ground-truth boxes, Q-Net, not refined', 'eval_gt_norefine'),
     ('ground-truth boxes, `--pose-source dense+qnet`', 'eval_gt_dense'),
@@ -90,6 +94,8 @@ _DETECTION = (
     Column('recall, visib >= 0.3', ('{d}.recall_iou50_visib30',)),
     Column('recall, visib >= 0.1', ('{d}.recall_iou50',)),
     Column('AP50', ('{d}.ap50',)),
+    Column('box size error (median)', ('{d}.size_error_median',), '{:+.3f}'),
+    Column('box side error (RMS)', ('{d}.side_error_rms',)),
 )
 
 # Bench rows: label, keys (median / p95 / max), format.
