@@ -84,7 +84,7 @@ def test_the_tf_prefix_stands_for_the_node_name_by_default():
 def test_the_pose_spread_is_measured_for_every_object_and_scaled_by_confidence(lmo_models):
     spread = load_pose_spread()
     assert set(spread) == set(lmo_models), POSE_SPREAD_FILE
-    assert 'pose_spread' in json.loads(POSE_SPREAD_FILE.read_text())['source']
+    assert 'bbpose pose-spread' in json.loads(POSE_SPREAD_FILE.read_text())['source']
     for name, entry in spread.items():
         assert all(0 < s < lmo_models[name].diameter for s in entry.sigma_m), name
         assert all(0 < s < np.pi for s in entry.sigma_rad), name

@@ -28,7 +28,7 @@ from bbpose_ros import __version__
 from bbpose_ros.core.errors import InputError
 
 SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench', 'docs',
-               'compare')
+               'compare', 'pose_spread')
 
 
 def build_parser():
