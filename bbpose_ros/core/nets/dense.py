@@ -30,14 +30,13 @@ Crops are cut as Q-Net's (square, ``context`` times the box's longest side), so 
 can feed both networks.
 """
 
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
-from typing import Any, Self
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 import torch.nn.functional as F
 
+from bbpose_ros.core.nets.config_dict import ConfigDict
 from bbpose_ros.core.nets.efficientnet_lite import BLOCK_CHANNELS, BLOCK_STRIDES, \
     EfficientNetLite0
 
@@ -49,7 +48,7 @@ PER_OBJECT = 5
 
 
 @dataclass(frozen=True)
-class DenseConfig:
+class DenseConfig(ConfigDict):
     """
     Architecture and convention of a dense net (stored in its weight file).
 
@@ -78,19 +77,6 @@ class DenseConfig:
     def map_size(self) -> int:
         """Side M of the output maps (cells of ``OUTPUT_STRIDE`` crop pixels)."""
         return self.crop_size // OUTPUT_STRIDE
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (tuples become lists)."""
-        data = asdict(self)
-        data['objects'] = list(self.objects)
-        return data
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Self:
-        """Inverse of ``to_dict``."""
-        data = dict(data)
-        data['objects'] = tuple(data['objects'])
-        return cls(**data)
 
 
 def _conv_bn(cin, cout, kernel):

@@ -35,15 +35,14 @@ Design, and why:
   of their box, which learns the false peaks the heatmap ranks high.
 """
 
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
-from typing import Any, Self
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
 
+from bbpose_ros.core.nets.config_dict import ConfigDict
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES, BLOCK_CHANNELS, EfficientNetLite0
 from bbpose_ros.core.nets.images import normalize_input
 from bbpose_ros.core.nets.verifier import CandidateVerifier
@@ -54,7 +53,7 @@ LITE0_TAPS = (4, 10)
 
 
 @dataclass(frozen=True)
-class DetectorConfig:
+class DetectorConfig(ConfigDict):
     """
     Architecture of the detector (stored in its weight file).
 
@@ -92,22 +91,6 @@ class DetectorConfig:
         if self.backbone not in BACKBONES:
             raise ValueError(f'unknown detector backbone {self.backbone!r}; '
                              f'choose one of {", ".join(BACKBONES)}')
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (tuples become lists)."""
-        data = asdict(self)
-        for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
-            data[key] = list(data[key])
-        return data
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Self:
-        """Inverse of ``to_dict``."""
-        data = dict(data)
-        for key in ('objects', 'input_size', 'channels', 'verifier_channels'):
-            if key in data:
-                data[key] = tuple(data[key])
-        return cls(**data)
 
 
 def _conv(cin, cout, stride=1, dilation=1):

@@ -46,13 +46,12 @@ Options (``QNetConfig``), the paper's version being the default where it has one
   (Rupprecht et al., ICCV 2017; Manhardt et al., ICCV 2019).
 """
 
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
-from typing import Any, Self
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from bbpose_ros.core.nets.config_dict import ConfigDict
 from bbpose_ros.core.nets.efficientnet_lite import (BACKBONES, BLOCK_CHANNELS, BLOCK_STRIDES,
                                                     EfficientNetLite0)
 from bbpose_ros.core.nets.images import normalize_input
@@ -65,7 +64,7 @@ SHARING_MODES = ('shared', 'per_object')
 
 
 @dataclass(frozen=True)
-class QNetConfig:
+class QNetConfig(ConfigDict):
     """
     Architecture and convention of a Q-Net (all stored in its weight file).
 
@@ -119,21 +118,6 @@ class QNetConfig:
     def feature_stride(self) -> int:
         """Crop pixels per cell of the last feature map."""
         return LITE0_STRIDE if self.backbone == 'lite0' else 2 ** len(self.channels)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (tuples become lists)."""
-        data = asdict(self)
-        data['objects'] = list(self.objects)
-        data['channels'] = list(self.channels)
-        return data
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Self:
-        """Inverse of ``to_dict``."""
-        data = dict(data)
-        data['objects'] = tuple(data['objects'])
-        data['channels'] = tuple(data['channels'])
-        return cls(**data)
 
 
 class _LiteFeatures(nn.Module):
