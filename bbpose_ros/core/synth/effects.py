@@ -22,18 +22,66 @@ import cv2
 import numpy as np
 
 if TYPE_CHECKING:
+    import torch
+
     from bbpose_ros.core.synth.config import SynthConfig
+
+    Factor = float | np.ndarray | torch.Tensor
+
+
+def adjust_colors(images: np.ndarray | torch.Tensor, image_axes: tuple[int, ...],
+                  channel_axis: int, saturation: Factor | None = None,
+                  contrast: Factor | None = None, gains: Factor | None = None,
+                  brightness: Factor | None = None) -> np.ndarray | torch.Tensor:
+    """
+    Scale the saturation and contrast of float images, gain their channels, add brightness.
+
+    In that order, each step left out where its factor is None: the colours are pulled
+    towards (factor < 1) or pushed from each pixel's grey (the mean of its channels), the
+    intensities towards or from the image's mean, each channel is multiplied by its gain and
+    the brightness added. The synthetic images' colour jitter and the training batches'
+    photometric augmentation both do it here.
+
+    Args:
+        images: float numpy array or torch tensor (changed in place and returned), e.g.
+            one (H, W, 3) image or an (N, 3, H, W) batch.
+        image_axes: the axes of one image, over which the contrast's mean is taken, e.g.
+            (0, 1, 2) or (1, 2, 3).
+        channel_axis: the colour channels' axis, e.g. 2 or 1.
+        saturation: factor of the colours' distance from grey.
+        contrast: factor of the intensities' distance from the image's mean.
+        gains: factor of each channel.
+        brightness: added to every intensity.
+
+    The factors are scalars or arrays that broadcast against ``images`` (per image, per
+    channel).
+
+    """
+    if saturation is not None:
+        gray = images.mean(axis=channel_axis, keepdims=True)
+        images -= gray
+        images *= saturation
+        images += gray
+    if contrast is not None:
+        mean = images.mean(axis=image_axes, keepdims=True)
+        images -= mean
+        images *= contrast
+        images += mean
+    if gains is not None:
+        images *= gains
+    if brightness is not None:
+        images += brightness
+    return images
 
 
 def jitter_colors(rng: np.random.Generator, image: np.ndarray,
                   config: SynthConfig) -> np.ndarray:
     """Random brightness, contrast and saturation of an (H, W, 3) uint8 RGB image."""
-    image = image.astype(np.float32)
-    gray = image.mean(axis=2, keepdims=True)
-    image = gray + (image - gray) * rng.uniform(*config.saturation_range)
-    mean = float(image.mean())
-    image = mean + (image - mean) * rng.uniform(*config.contrast_range)
-    image += rng.uniform(*config.brightness_range)
+    saturation = rng.uniform(*config.saturation_range)
+    contrast = rng.uniform(*config.contrast_range)
+    brightness = rng.uniform(*config.brightness_range)
+    image = adjust_colors(image.astype(np.float32), (0, 1, 2), 2, saturation=saturation,
+                          contrast=contrast, brightness=brightness)
     return np.clip(image, 0, 255).astype(np.uint8)
 
 

@@ -17,7 +17,9 @@
 import numpy as np
 import torch
 
-from bbpose_ros.core.synth.effects import jpeg_roundtrip
+from bbpose_ros.core.synth.effects import adjust_colors, jpeg_roundtrip
+
+IMAGE_AXES, CHANNEL_AXIS = (1, 2, 3), 1      # of an (N, 3, H, W) batch
 
 
 def photometric(images: torch.Tensor, generator: torch.Generator,
@@ -39,8 +41,8 @@ def photometric(images: torch.Tensor, generator: torch.Generator,
     gains = 1 + uniform((n, 3, 1, 1), 0.15)
     contrast = 1 + uniform((n, 1, 1, 1), 0.3)
     brightness = uniform((n, 1, 1, 1), 0.12)
-    mean = images.mean(dim=(1, 2, 3), keepdim=True)
-    images.sub_(mean).mul_(contrast).add_(mean).mul_(gains).add_(brightness)
+    adjust_colors(images, IMAGE_AXES, CHANNEL_AXIS, contrast=contrast, gains=gains,
+                  brightness=brightness)
     sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.03 * strength
     images.add_(torch.randn(images.shape, generator=generator) * sigma)
     return images.clamp_(0.0, 1.0)
@@ -99,14 +101,13 @@ def strong_photometric(images: torch.Tensor, generator: torch.Generator,
         elif sharpen[k]:
             smooth = _gaussian_blur(images[k], 1.0)
             images[k] += float(amounts[k]) * (images[k] - smooth)
-    gray = images.mean(dim=1, keepdim=True)
     saturation = torch.where(chosen(0.5), uniform(0.0, 2.0).clamp(min=0.0), torch.ones(n))
-    images.sub_(gray).mul_(saturation.view(n, 1, 1, 1)).add_(gray)
-    mean = images.mean(dim=(1, 2, 3), keepdim=True)
-    contrast = torch.where(chosen(0.5), uniform(0.5, 1.5), torch.ones(n)).view(n, 1, 1, 1)
-    brightness = torch.where(chosen(0.5), uniform(-0.25, 0.25), torch.zeros(n)).view(n, 1, 1, 1)
+    contrast = torch.where(chosen(0.5), uniform(0.5, 1.5), torch.ones(n))
+    brightness = torch.where(chosen(0.5), uniform(-0.25, 0.25), torch.zeros(n))
     gains = 1 + (torch.rand((n, 3, 1, 1), generator=generator) * 2 - 1) * 0.2 * strength
-    images.sub_(mean).mul_(contrast).add_(mean).mul_(gains).add_(brightness)
+    adjust_colors(images, IMAGE_AXES, CHANNEL_AXIS, saturation=saturation.view(n, 1, 1, 1),
+                  contrast=contrast.view(n, 1, 1, 1), gains=gains,
+                  brightness=brightness.view(n, 1, 1, 1))
     noisy = chosen(0.5).view(n, 1, 1, 1)
     sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.06 * strength * noisy
     images.add_(torch.randn(images.shape, generator=generator) * sigma)
