@@ -21,6 +21,7 @@ with images, visible masks and ground truth, ``previews/`` with boxes drawn, and
 written under a temporary name next to it and renamed at the end.
 """
 
+import argparse
 from dataclasses import asdict
 from pathlib import Path
 
@@ -28,17 +29,16 @@ from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_dataset_argument, add_inplane_argument, \
     with_inplane_range
-from bbpose_ros.core.data.bop import read_json
+from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.models import load_bop_models, resolve_object_names
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
-from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
 from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
     write_rgb_png
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``synth`` subcommand on an argparse subparsers object; return it."""
     parser = subparsers.add_parser(
         'synth', help='render synthetic training images with ground truth (BOP format)',
@@ -61,18 +61,7 @@ def add_parser(subparsers):
     return parser
 
 
-def load_camera(dataset_dir):
-    """Read the CameraIntrinsics of a BOP dataset's ``camera.json``."""
-    path = Path(dataset_dir) / 'camera.json'
-    data = read_json(path)
-    try:
-        return CameraIntrinsics(float(data['fx']), float(data['fy']), float(data['cx']),
-                                float(data['cy']), int(data['width']), int(data['height']))
-    except (KeyError, TypeError, ValueError) as err:
-        raise InputError(f'{path}: needs numeric fx, fy, cx, cy, width, height ({err})') from err
-
-
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Run ``bbpose synth``; returns the exit status, bad input raises InputError."""
     if args.count < 1:
         raise InputError(f'--count must be at least 1, got {args.count}')

@@ -116,6 +116,17 @@ def read_json(path: Path | str) -> Any:
         raise InputError(f'malformed JSON in {path}: {err}') from err
 
 
+def load_camera(dataset_dir: Path | str) -> CameraIntrinsics:
+    """Read the CameraIntrinsics of a BOP dataset's ``camera.json``."""
+    path = Path(dataset_dir) / 'camera.json'
+    data = read_json(path)
+    try:
+        return CameraIntrinsics(float(data['fx']), float(data['fy']), float(data['cx']),
+                                float(data['cy']), int(data['width']), int(data['height']))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f'{path}: needs numeric fx, fy, cx, cy, width, height ({err})') from err
+
+
 def _field(record, key, path, where, shape=None):
     """Fetch ``record[key]`` (as an array of ``shape`` if given) or name what is wrong."""
     try:
