@@ -51,8 +51,8 @@ class BagFrame:
     ground_truth: dict = field(default_factory=dict)
 
 
-def read_bag_frames(path, image_topic=topics.IMAGE_TOPIC,
-                    camera_info_topic=topics.CAMERA_INFO_TOPIC):
+def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
+                    camera_info_topic: str = topics.CAMERA_INFO_TOPIC) -> list[BagFrame]:
     """Read every image of a bag, paired by header stamp with CameraInfo and ground truth."""
     path = Path(path)
     if not path.exists():

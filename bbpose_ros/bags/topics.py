@@ -14,7 +14,10 @@
 
 """Topic names, frame ids and message helpers shared by the bag writer and reader."""
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 from rosbags.typesys import get_typestore, Stores
 
 from bbpose_ros.core.geometry.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
@@ -33,19 +36,19 @@ POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
-def ground_truth_topic(object_name):
+def ground_truth_topic(object_name: str) -> str:
     """Topic of an object's ground-truth poses, e.g. /ground_truth/ape/pose."""
     return f'{GROUND_TRUTH_PREFIX}{object_name}/pose'
 
 
-def object_of_ground_truth_topic(topic):
+def object_of_ground_truth_topic(topic: str) -> str | None:
     """Object name of a ground-truth topic, or None for other topics."""
     if topic.startswith(GROUND_TRUTH_PREFIX) and topic.endswith('/pose'):
         return topic[len(GROUND_TRUTH_PREFIX):-len('/pose')]
     return None
 
 
-def header(stamp_ns, frame_id):
+def header(stamp_ns: int, frame_id: str) -> Any:
     """Build a std_msgs/Header for a stamp in nanoseconds."""
     types = TYPESTORE.types
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
@@ -53,7 +56,8 @@ def header(stamp_ns, frame_id):
     return types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
 
 
-def pose_message(stamp_ns, frame_id, rotation, translation_m):
+def pose_message(stamp_ns: int, frame_id: str, rotation: npt.ArrayLike,
+                 translation_m: npt.ArrayLike) -> Any:
     """geometry_msgs/PoseStamped for x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
     types = TYPESTORE.types
     x, y, z, w = wxyz_to_xyzw(matrix_to_quat_wxyz(rotation))
@@ -63,7 +67,7 @@ def pose_message(stamp_ns, frame_id, rotation, translation_m):
     return types[POSE_TYPE](header=header(stamp_ns, frame_id), pose=pose)
 
 
-def pose_from_message(message):
+def pose_from_message(message: Any) -> tuple[np.ndarray, np.ndarray]:
     """(rotation (3, 3), translation (3,) metres) of a PoseStamped."""
     q = message.pose.orientation
     p = message.pose.position

@@ -14,21 +14,25 @@
 
 """Write BOP frames into a rosbag2 (images, camera info and ground-truth poses)."""
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 from tqdm import tqdm
 
 from bbpose_ros.bags import topics
+from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.data.image_encoding import encode_rgb8
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 
-def camera_info_message(stamp_ns, frame_id, camera):
+def camera_info_message(stamp_ns: int, frame_id: str, camera: CameraIntrinsics) -> Any:
     """sensor_msgs/CameraInfo of an undistorted camera: K, P = [K | 0], D = 0, R = I."""
     types = topics.TYPESTORE.types
     roi = types['sensor_msgs/msg/RegionOfInterest'](
@@ -40,7 +44,7 @@ def camera_info_message(stamp_ns, frame_id, camera):
         binning_x=0, binning_y=0, roi=roi)
 
 
-def image_message(stamp_ns, frame_id, image_rgb):
+def image_message(stamp_ns: int, frame_id: str, image_rgb: np.ndarray) -> Any:
     """sensor_msgs/Image, rgb8, of an (H, W, 3) uint8 array."""
     height, width, encoding, step, data = encode_rgb8(image_rgb)
     return topics.TYPESTORE.types[topics.IMAGE_TYPE](
@@ -48,9 +52,9 @@ def image_message(stamp_ns, frame_id, image_rgb):
         encoding=encoding, is_bigendian=0, step=step, data=data)
 
 
-def write_bop_bag(frames, out_path, rate_hz=10.0, start_stamp_ns=1_000_000_000,
-                  frame_id=topics.DEFAULT_FRAME_ID, storage='mcap', min_visib=0.1,
-                  progress=True):
+def write_bop_bag(frames: Sequence[BopFrame], out_path: Path | str, rate_hz: float = 10.0,
+                  start_stamp_ns: int = 1_000_000_000, frame_id: str = topics.DEFAULT_FRAME_ID,
+                  storage: str = 'mcap', min_visib: float = 0.1, progress: bool = True) -> int:
     """
     Write BOP frames as a rosbag2 at ``out_path``, atomically.
 

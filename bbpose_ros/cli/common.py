@@ -18,24 +18,27 @@ import argparse
 from dataclasses import replace
 import os
 from pathlib import Path
+from typing import TypeVar
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
 
+Config = TypeVar('Config')
 
-def add_dataset_argument(parser):
+
+def add_dataset_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--dataset DIR`` (a BOP folder; default ../shared/datasets/lmo)."""
     parser.add_argument('--dataset', type=Path,
                         default=Path(os.environ.get('BBPOSE_DATASET', DEFAULT_DATASET)),
                         help='BOP dataset folder (default: $BBPOSE_DATASET or %(default)s)')
 
 
-def add_objects_argument(parser):
+def add_objects_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--objects a,b,c`` (default: every object of the dataset)."""
     parser.add_argument('--objects', type=lambda text: [n for n in text.split(',') if n],
                         default=None, help='comma-separated object names (default: all)')
 
 
-def add_inplane_argument(parser):
+def add_inplane_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--inplane-range-deg LOW,HIGH`` (the synthetic objects' roll; default: any)."""
     parser.add_argument('--inplane-range-deg', type=float_pair, default=None,
                         metavar='LOW,HIGH',
@@ -44,14 +47,14 @@ def add_inplane_argument(parser):
                              '--inplane-range-deg=-60,60 for upright objects (default: any)')
 
 
-def with_inplane_range(config, args):
+def with_inplane_range(config: Config, args: argparse.Namespace) -> Config:
     """Return the SynthConfig ``config`` with ``--inplane-range-deg`` applied when given."""
     if args.inplane_range_deg is None:
         return config
     return replace(config, inplane_range_deg=args.inplane_range_deg)
 
 
-def float_pair(text):
+def float_pair(text: str) -> tuple[float, float]:
     """Parse 'A,B' into two floats (an argparse type)."""
     try:
         low, high = (float(x) for x in text.split(','))
@@ -60,7 +63,7 @@ def float_pair(text):
     return low, high
 
 
-def add_frames_argument(parser):
+def add_frames_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
     parser.add_argument('--max-frames', type=int, default=None,
                         help='use only the first N frames (default: all)')

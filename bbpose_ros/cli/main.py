@@ -21,6 +21,7 @@ and exit code 2; nothing half-written is left behind by the subcommands.
 """
 
 import argparse
+from collections.abc import Sequence
 import importlib
 import sys
 
@@ -31,7 +32,7 @@ SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'ben
                'compare', 'pose_spread')
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with every subcommand registered."""
     parser = argparse.ArgumentParser(
         prog='bbpose', description='6D object pose from one RGB image: tools of bbpose_ros.')
@@ -42,7 +43,7 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Run ``bbpose``; returns the exit code (0 ok, 2 bad input, 130 interrupted)."""
     args = build_parser().parse_args(argv)
     try:

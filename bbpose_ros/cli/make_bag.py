@@ -14,6 +14,7 @@
 
 """``bbpose make-bag``: turn a BOP scene into a rosbag2 for replay and tests."""
 
+import argparse
 from pathlib import Path
 import time
 
@@ -23,7 +24,7 @@ from bbpose_ros.cli.common import add_dataset_argument, add_frames_argument
 from bbpose_ros.core.data.bop import BopDataset
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``make-bag`` subcommand."""
     parser = subparsers.add_parser(
         'make-bag', help='write BOP frames as a rosbag2 (images, camera info, ground truth)',
@@ -48,7 +49,7 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Write the bag; returns the exit code."""
     frames = BopDataset(args.dataset).frames(args.scene)[:args.max_frames]
     start = time.time() if args.start_stamp is None else args.start_stamp

@@ -14,6 +14,7 @@
 
 """``bbpose play``: publish a bag's topics into the ROS graph (``ros2 bag play`` stand-in)."""
 
+import argparse
 from pathlib import Path
 import time
 
@@ -27,7 +28,7 @@ from bbpose_ros.core.errors import InputError
 ACK_TIMEOUT_S = 5.0   # reliable messages still in flight when the bag ends
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``play`` subcommand."""
     parser = subparsers.add_parser(
         'play', help='publish the topics of a rosbag2 with their recorded stamps',
@@ -43,7 +44,7 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def play(player, rate, delay_s=0.0):
+def play(player: BagPlayer, rate: float, delay_s: float = 0.0) -> int:
     """Publish the bag's messages paced by recorded time / rate; returns the count."""
     time.sleep(delay_s)
     start_s, first_ns, count = time.perf_counter(), None, 0
@@ -57,7 +58,7 @@ def play(player, rate, delay_s=0.0):
     return count
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Play the bag; returns the exit code."""
     if args.rate <= 0:
         raise InputError(f'--rate must be positive, got {args.rate}')

@@ -27,7 +27,9 @@ system clock), not with when this process's executor got round to its callback, 
 benchmark process does not inflate the latencies it reports.
 """
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 import time
 
 from geometry_msgs.msg import PoseStamped
@@ -43,6 +45,7 @@ from bbpose_ros.bags.writer import camera_info_message, image_message
 from bbpose_ros.cli.graph.player import PLAY_QOS
 from bbpose_ros.cli.graph.replay import DIAGNOSTICS_TIMEOUT_S, NodeProcess, Recorder, Recording
 from bbpose_ros.cli.graph.replay import use_large_image_profile
+from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import sample_process
 from bbpose_ros.core.stamps import stamp_to_ns
@@ -54,7 +57,7 @@ ANSWER_TIMEOUT_S = 30.0    # per warm-up frame
 DRAIN_S = 2.0              # after the last frame, for its answer
 
 
-def camera_messages(frames):
+def camera_messages(frames: Iterable[BopFrame]) -> list[tuple[Image, CameraInfo]]:
     """Make (Image, CameraInfo) rclpy messages of BopFrames, as ``bbpose make-bag`` writes them."""
     return [(_to_rclpy(image_message(0, topics.DEFAULT_FRAME_ID, frame.load_image()),
                        topics.IMAGE_TYPE, Image),
@@ -78,12 +81,12 @@ class CameraPublisher:
 
     """
 
-    def __init__(self, node, pairs):
+    def __init__(self, node: Node, pairs: Sequence[tuple[Image, CameraInfo]]) -> None:
         self.pairs = pairs
         self.image = node.create_publisher(Image, topics.IMAGE_TOPIC, PLAY_QOS)
         self.info = node.create_publisher(CameraInfo, topics.CAMERA_INFO_TOPIC, PLAY_QOS)
 
-    def publish(self, index, stamp_ns):
+    def publish(self, index: int, stamp_ns: int) -> None:
         """Publish pair ``index`` (modulo their number), both stamped ``stamp_ns``."""
         image, info = self.pairs[index % len(self.pairs)]
         for message in (image, info):
@@ -106,7 +109,7 @@ class ArrivalClock:
 
     """
 
-    def __init__(self, node, objects):
+    def __init__(self, node: Node, objects: Iterable[str]) -> None:
         self.recording = Recording()
         for name in objects:
             node.create_subscription(PoseStamped, f'/{NODE_NAME}/{name}/pose', self._on_pose,
@@ -157,7 +160,9 @@ class GraphRun:
     exit_code: int | None = None
 
 
-def run_graph(pairs, objects, params_file, overrides, rate_hz, duration_s):
+def run_graph(pairs: Sequence[tuple[Image, CameraInfo]], objects: Iterable[str],
+              params_file: Path | str, overrides: Sequence[str], rate_hz: float,
+              duration_s: float) -> GraphRun:
     """
     Start the node, warm it up, publish at ``rate_hz`` for ``duration_s`` and stop it.
 

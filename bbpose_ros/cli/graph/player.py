@@ -19,10 +19,12 @@ The bag is read with ``rosbags`` and each message is published as its raw CDR by
 messages keep their recorded header stamps bit for bit.
 """
 
+from collections.abc import Iterator
 import importlib
 from pathlib import Path
 
 from rclpy.duration import Duration
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rosbags.rosbag2 import Reader
 
@@ -31,7 +33,7 @@ from bbpose_ros.core.errors import InputError
 PLAY_QOS = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 
 
-def message_class(msgtype):
+def message_class(msgtype: str) -> type:
     """Return the rclpy message class of a type name such as 'sensor_msgs/msg/Image'."""
     package, _, name = msgtype.rpartition('/msg/')
     try:
@@ -50,7 +52,7 @@ class BagPlayer:
 
     """
 
-    def __init__(self, node, path):
+    def __init__(self, node: Node, path: Path | str) -> None:
         self.path = Path(path)
         if not self.path.exists():
             raise InputError(f'bag not found: {self.path}')
@@ -64,17 +66,17 @@ class BagPlayer:
         self.publishers = {topic: node.create_publisher(cls, topic, PLAY_QOS)
                            for topic, cls in self.types.items()}
 
-    def messages(self):
+    def messages(self) -> Iterator[tuple[str, int, bytes]]:
         """Yield (topic, recorded time in ns, raw CDR bytes) in recorded order."""
         with Reader(self.path) as reader:
             for connection, timestamp_ns, raw in reader.messages():
                 yield connection.topic, timestamp_ns, bytes(raw)
 
-    def publish(self, topic, raw):
+    def publish(self, topic: str, raw: bytes) -> None:
         """Publish raw CDR bytes on a topic of the bag."""
         self.publishers[topic].publish(raw)
 
-    def wait_for_all_acked(self, timeout_s):
+    def wait_for_all_acked(self, timeout_s: float) -> bool:
         """Wait until subscribers acknowledged every message; returns False on timeout."""
         timeout = Duration(nanoseconds=int(timeout_s * 1e9))
         acked = [publisher.wait_for_all_acked(timeout) for publisher in self.publishers.values()]
