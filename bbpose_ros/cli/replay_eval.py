@@ -18,12 +18,12 @@
 The node runs as a child process; the bag is played in lockstep (see ``graph.replay``), the
 node's outputs are recorded into a results bag beside the JSON, and its poses (those of the
 PoseStamped topics, and separately those of ``~/detections``) are scored against the bag's
-ground truth with the scoring code of ``bbpose eval``. Ground-truth and estimated poses are
-matched through their boxes: the projection of the object's mesh at each pose (the node
-publishes poses, not its detector's boxes). ``--video`` writes each frame's estimates beside
-its ground truth as an .mp4.
+ground truth by ``core.eval.recorded_poses`` with the scoring code of ``bbpose eval``.
+``--video`` writes each frame's estimates beside its ground truth as an .mp4.
 """
 
+import argparse
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 import sys
 
@@ -33,29 +33,27 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from tqdm import tqdm
 
-from bbpose_ros.bags.reader import read_bag_frames
+from bbpose_ros.bags.reader import BagFrame, read_bag_frames
 from bbpose_ros.cli.graph.player import BagPlayer
-from bbpose_ros.cli.graph.replay import NodeProcess, Recorder, replay_lockstep
-from bbpose_ros.cli.graph.replay import use_large_image_profile, write_results_bag
+from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder, Recording
+from bbpose_ros.cli.graph.replay import replay_lockstep, use_large_image_profile
+from bbpose_ros.cli.graph.replay import write_results_bag
 from bbpose_ros.core import viz
-from bbpose_ros.core.data.bop import GroundTruthInstance
-from bbpose_ros.core.data.models import load_bop_models
+from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
-from bbpose_ros.core.eval.evaluation import format_report, pose_box, score_frame
-from bbpose_ros.core.eval.evaluation import summarize_objects
+from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
+# latencies_ms: bench.py still imports it from here.
+from bbpose_ros.core.eval.recorded_poses import ground_truth_instances, latencies_ms  # noqa: F401
+from bbpose_ros.core.eval.recorded_poses import recording_report, score_recording
 from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.latency import timing_summary
-from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.video import check_video_path, write_video
-from bbpose_ros.ros.params import package_config_file, read_params_file
-from bbpose_ros.ros.params import resolve_dataset_dir
+from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
 
-DEFAULT_PARAMS = package_config_file('bbpose.yaml')
 OVERLAY_FRAMES = 4
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``replay-eval`` subcommand."""
     parser = subparsers.add_parser(
         'replay-eval', help='replay a bag through bbpose_node and score its poses',
@@ -87,84 +85,14 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def results_bag_path(json_path):
+def results_bag_path(json_path: Path) -> Path:
     """Return the results bag folder beside the report: ``<stem>_results_bag``."""
     return json_path.with_name(f'{json_path.stem}_results_bag')
 
 
-def ground_truth_instances(frame, models):
-    """Make GroundTruthInstances of a BagFrame's ground truth (configured objects only)."""
-    instances = []
-    for name, poses in frame.ground_truth.items():
-        for rotation, translation in poses if name in models else ():
-            box = pose_box(models[name], frame.camera, rotation, translation)
-            instances.append(GroundTruthInstance(name, models[name].obj_id, rotation,
-                                                 translation, box, box, 1.0))
-    return instances
-
-
-def node_estimates(entries, models, camera):
-    """Make PoseEstimates of a frame's recorded (name, rotation, translation) poses."""
-    return [PoseEstimate(Detection(name, 1.0, pose_box(models[name], camera, rotation,
-                                                       translation)),
-                         rotation, translation)
-            for name, rotation, translation in entries]
-
-
-def score_recording(frames, poses, models):
-    """
-    Score the node's poses per frame; returns {object name: [InstanceScore]}.
-
-    ``poses``: {stamp: [(object name, rotation, translation)]}, a Recording's ``poses`` or
-    ``detections``.
-    """
-    scores = {name: [] for name in models}
-    for frame in frames:
-        estimates = node_estimates(poses.get(frame.stamp_ns, []), models, frame.camera)
-        for score in score_frame(models, ground_truth_instances(frame, models), estimates,
-                                 frame.camera):
-            scores[score.object_name].append(score)
-    return scores
-
-
-def latencies_ms(recording):
-    """
-    Return per-frame {stage: ms} of the graph round trip, from the image's publication.
-
-    ``end_to_end``: to its last PoseStamped received (frames with poses); ``answer``: to its
-    MarkerArray received (every answered frame).
-    """
-    latencies = []
-    for stamp, sent_s in recording.published_s.items():
-        arrivals = {'end_to_end': recording.pose_received_s.get(stamp),
-                    'answer': recording.answered_s.get(stamp)}
-        latencies.append({key: (arrival_s - sent_s) * 1e3
-                          for key, arrival_s in arrivals.items() if arrival_s is not None})
-    return latencies
-
-
-def recording_report(recording, scores, detection_scores):
-    """
-    Make a replay's report: per-object and mean scores, node and graph timings, frames.
-
-    ``scores``, ``detection_scores``: ``score_recording`` of the PoseStamped topics' poses
-    and of the ~/detections ones. The report's ``detections`` holds the latter's mean, how
-    many arrays and detections arrived, and how many /tf transforms.
-    """
-    report = summarize_objects(scores)
-    report['timing_ms'] = dict(recording.timings_ms)
-    report['timing_ms'].update(timing_summary(latencies_ms(recording)))
-    report['frames'] = {'sent': len(recording.published_s),
-                        'answered': len(recording.answered_s)}
-    report['detections'] = {
-        'mean': summarize_objects(detection_scores)['mean'],
-        'arrays': len(recording.detections),
-        'detections': sum(len(entries) for entries in recording.detections.values()),
-        'tf_transforms': sum(recording.transforms.values())}
-    return report
-
-
-def write_plots(folder, frames, recording, models, scores, per_object):
+def write_plots(folder: Path, frames: Sequence[BagFrame], recording: Recording,
+                models: Mapping[str, ObjectModel], scores: Mapping[str, Sequence[InstanceScore]],
+                per_object: Mapping[str, Mapping[str, float]]) -> None:
     """Write the recall curves, per-object bars and a few overlay images into ``folder``."""
     plots.recall_curves(scores, folder / 'recall_curves.png')
     plots.object_bars(per_object, folder / 'objects.png')
@@ -177,7 +105,8 @@ def write_plots(folder, frames, recording, models, scores, per_object):
         viz.write_image(folder / f'overlay_{index:04d}.png', image)
 
 
-def video_frames(frames, recording, models):
+def video_frames(frames: Sequence[BagFrame], recording: Recording,
+                 models: Mapping[str, ObjectModel]) -> Iterator[np.ndarray]:
     """Yield per frame its PoseStamped estimates (left) beside its ground truth (right)."""
     for index, frame in enumerate(frames):
         estimates = recording.poses.get(frame.stamp_ns, [])
@@ -190,7 +119,8 @@ def video_frames(frames, recording, models):
              f'ground truth: {len(truths)} objects')])
 
 
-def record(args, objects, frame_count, overrides):
+def record(args: argparse.Namespace, objects: list[str], frame_count: int,
+           overrides: list[str]) -> Recording:
     """Run the node with parameter ``overrides``, replay the bag into it; return the Recording."""
     use_large_image_profile()
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
@@ -213,7 +143,7 @@ def record(args, objects, frame_count, overrides):
     return recording
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Replay, score, print the table and write the JSON, bag and plots; returns 0."""
     if args.video is not None:
         check_video_path(args.video)

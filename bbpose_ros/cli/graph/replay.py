@@ -21,6 +21,7 @@ still answers every frame. A frame counts as answered when its MarkerArray arriv
 publishes one per processed frame, after the frame's poses).
 """
 
+from collections.abc import Callable, Iterable, MutableMapping, Sequence
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
@@ -29,14 +30,18 @@ import signal
 import subprocess
 import sys
 import time
+from typing import IO
 
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import get_types_from_msg, get_typestore, Stores
+from rosbags.typesys.store import Typestore
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
 from vision_msgs.msg import Detection3DArray
@@ -44,11 +49,13 @@ from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.writer import STORAGE
+from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
 from bbpose_ros.ros.params import NODE_NAME, package_config_file
 
+DEFAULT_PARAMS = package_config_file('bbpose.yaml')   # the node's parameters file
 FASTDDS_PROFILE = package_config_file('fastdds_large_images.xml')
 FASTDDS_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 STOP_TIMEOUT_S = 5.0
@@ -56,7 +63,7 @@ DIAGNOSTICS_TIMEOUT_S = 3.0   # the node publishes them at 1 Hz
 POLL_S = 0.02
 
 
-def use_large_image_profile(environ=os.environ):
+def use_large_image_profile(environ: MutableMapping[str, str] = os.environ) -> None:
     """Select the shipped Fast DDS profile for large images unless one is already set."""
     if FASTDDS_PROFILE.is_file() and not environ.get(FASTDDS_ENV):
         environ[FASTDDS_ENV] = str(FASTDDS_PROFILE)
@@ -74,8 +81,10 @@ class NodeProcess:
 
     """
 
-    def __init__(self, params_file, overrides=(), image_topic=topics.IMAGE_TOPIC,
-                 camera_info_topic=topics.CAMERA_INFO_TOPIC, stderr=None):
+    def __init__(self, params_file: Path | str, overrides: Sequence[str] = (),
+                 image_topic: str = topics.IMAGE_TOPIC,
+                 camera_info_topic: str = topics.CAMERA_INFO_TOPIC,
+                 stderr: int | IO | None = None) -> None:
         command = [sys.executable, '-m', 'bbpose_ros.ros.node', '--ros-args',
                    '--params-file', str(params_file)]
         for override in overrides:
@@ -83,13 +92,13 @@ class NodeProcess:
         command += ['-r', f'image:={image_topic}', '-r', f'camera_info:={camera_info_topic}']
         self.process = subprocess.Popen(command, stderr=stderr)
 
-    def check_alive(self):
+    def check_alive(self) -> None:
         """Raise InputError when the node has exited (its log is on stderr)."""
         code = self.process.poll()
         if code is not None:
             raise InputError(f'{NODE_NAME} exited with code {code}; see its log above')
 
-    def stop(self):
+    def stop(self) -> int:
         """SIGINT, then SIGKILL after STOP_TIMEOUT_S; returns the exit code."""
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGINT)
@@ -141,7 +150,7 @@ class Recorder:
 
     """
 
-    def __init__(self, node, objects):
+    def __init__(self, node: Node, objects: Iterable[str]) -> None:
         self.node = node
         self.recording = Recording()
         self.executor = SingleThreadedExecutor(context=node.context)
@@ -157,7 +166,8 @@ class Recorder:
             node.create_subscription(cls, topic, self._callback(topic, cls, handler, name), 100,
                                      raw=True)
 
-    def spin_until(self, done, timeout_s, process=None):
+    def spin_until(self, done: Callable[[], bool], timeout_s: float,
+                   process: NodeProcess | None = None) -> bool:
         """Spin until ``done()`` is true; returns False on timeout or raises if process died."""
         deadline = time.monotonic() + timeout_s
         while not done():
@@ -168,7 +178,7 @@ class Recorder:
             self.executor.spin_once(timeout_sec=POLL_S)
         return True
 
-    def connected(self, publishers):
+    def connected(self, publishers: Iterable[Publisher]) -> bool:
         """Return True when ``publishers`` all have subscribers and every output a publisher."""
         return all(p.get_subscription_count() > 0 for p in publishers) and \
             all(self.node.count_publishers(topic) > 0 for topic in self.topics
@@ -211,8 +221,10 @@ class Recorder:
                 self.recording.counts = counts_from_status(status)
 
 
-def replay_lockstep(player, recorder, process, image_topic=topics.IMAGE_TOPIC,
-                    start_timeout_s=120.0, answer_timeout_s=30.0, progress=None):
+def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
+                    image_topic: str = topics.IMAGE_TOPIC, start_timeout_s: float = 120.0,
+                    answer_timeout_s: float = 30.0,
+                    progress: Callable[[int], object] | None = None) -> Recording:
     """
     Play every message of the bag, each image after the node answered the previous one.
 
@@ -246,7 +258,8 @@ def _wait_answer(recorder, stamp, timeout_s, process):
         recorder.spin_until(lambda: stamp in recorder.recording.answered_s, timeout_s, process)
 
 
-def write_results_bag(path, messages, storage='mcap'):
+def write_results_bag(path: Path | str, messages: Iterable[tuple[str, str, int, bytes]],
+                      storage: str = 'mcap') -> None:
     """
     Write recorded (topic, type, time ns, raw CDR) messages as a rosbag2 at ``path``.
 
@@ -268,7 +281,7 @@ def write_results_bag(path, messages, storage='mcap'):
             writer.write(connections[topic], time_ns, raw)
 
 
-def typestore_of(msgtypes):
+def typestore_of(msgtypes: Iterable[str]) -> Typestore:
     """
     Return rosbags' Jazzy typestore, plus the packages of ``msgtypes`` that it lacks.
 
