@@ -12,7 +12,11 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Shared fixtures: the real LM-O frames in ../shared (or $BBPOSE_DATASET), headless GL."""
+"""
+Shared fixtures: the real LM-O frames in ../shared (or $BBPOSE_DATASET), headless GL.
+
+Every test that uses the LM-O fixtures is marked ``dataset`` (pytest.ini's markers).
+"""
 
 import os
 from pathlib import Path
@@ -22,11 +26,19 @@ import pytest
 from bbpose_ros.core.data.bop import BopDataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+DATASET_FIXTURES = {'lmo_root', 'lmo', 'lmo_models', 'lmo_frames'}
 
 
 def dataset_path():
     """Return the LM-O dataset folder the tests read (never copied into the repo)."""
     return Path(os.environ.get('BBPOSE_DATASET', REPO_ROOT.parent / 'shared/datasets/lmo'))
+
+
+def pytest_collection_modifyitems(items):
+    """Mark ``dataset`` the tests that read LM-O through its fixtures (at any depth)."""
+    for item in items:
+        if DATASET_FIXTURES & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.dataset)
 
 
 @pytest.fixture(scope='session')

@@ -48,6 +48,8 @@ from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status
 
+pytestmark = pytest.mark.slow   # starts bbpose_node as a process
+
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
 START_S = 1_700_000_000

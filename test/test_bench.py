@@ -19,10 +19,13 @@ import os
 import subprocess
 import sys
 
+import pytest
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files
 
 from bbpose_ros.core.eval.benchmark import ProcessSample, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
+
+pytestmark = pytest.mark.slow   # runs the bbpose CLI and bbpose_node as processes
 
 STATS = {'median_ms', 'p95_ms', 'max_ms'}
 

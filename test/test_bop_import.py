@@ -40,6 +40,8 @@ from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 from bbpose_ros.core.training.device import training_device
 from bbpose_ros.core.training.loop import RunLog
 
+pytestmark = pytest.mark.slow   # renders with OpenGL and trains
+
 SCENES = 6
 SEED = 3
 # Images 3.. are re-shot by a camera zoomed ZOOM times and shifted by SHIFT pixels.

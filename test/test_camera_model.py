@@ -163,6 +163,7 @@ def test_rectified_images_come_back_to_the_originals(redistorted, name):
     assert max(back) < 4.0 and min(raw) > 3 * max(back)
 
 
+@pytest.mark.slow   # the pipeline on redistorted real frames, ~8 s each
 @pytest.mark.parametrize('name', list(DISTORTIONS))
 def test_redistorted_frames_give_the_poses_of_the_originals(redistorted, lmo_models, name):
     frames, originals, images = redistorted

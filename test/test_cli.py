@@ -25,6 +25,8 @@ import pytest
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.eval.evaluation import POSE_KEYS
 
+pytestmark = pytest.mark.slow   # runs the bbpose CLI as a process
+
 
 def bbpose(*args, cwd=None):
     """Run ``bbpose`` in a fresh interpreter; returns the CompletedProcess."""
@@ -141,7 +143,6 @@ def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
-@pytest.mark.slow
 def test_eval_writes_instance_records_that_compare_pairs(lmo_root, tmp_path):
     out = tmp_path / 'r.json'
     result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',

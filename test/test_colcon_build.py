@@ -20,6 +20,10 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.slow   # runs colcon in a process
+
 ROOT = Path(__file__).parents[1]
 
 

@@ -18,6 +18,10 @@ from pathlib import Path
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.slow   # imports the core in a fresh Python process
+
 CORE = Path(__file__).parents[1] / 'bbpose_ros' / 'core'
 
 

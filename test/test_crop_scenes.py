@@ -33,6 +33,8 @@ from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, is_
 from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
 from bbpose_ros.core.training.real_validation import RealCrops
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 TARGETS = ('ape', 'driller', 'eggbox')
 

@@ -42,6 +42,8 @@ from bbpose_ros.core.training.dense_training import (canonical_symmetry, dense_l
                                                      symmetric_coordinates)
 from bbpose_ros.core.training.runs import train_dense
 
+pytestmark = pytest.mark.slow   # renders with OpenGL and trains
+
 TARGETS = ('ape', 'eggbox', 'glue')
 
 

@@ -33,6 +33,8 @@ from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 from bbpose_ros.core.training.quantization import calibration_images, quantize_network
 
+pytestmark = pytest.mark.slow   # quantises the networks and runs them on real frames (~20 s)
+
 SHIPPED_INT8 = int8_graph_path(DEFAULT_DETECTOR_WEIGHTS)
 SHIPPED_QNET_INT8 = int8_graph_path(DEFAULT_QNET_WEIGHTS)
 FRAMES = 8

@@ -40,6 +40,8 @@ from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status
 
+pytestmark = pytest.mark.slow   # starts bbpose_node as a process
+
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
 REPUBLISH_S = 2.0   # seconds between publications of a frame not answered yet
@@ -222,7 +224,6 @@ def test_activate_again_after_deactivate(graph):
     assert answered(client)
 
 
-@pytest.mark.slow
 def test_late_camera_infos_still_pair_their_images(graph):
     """5 Hz, each CameraInfo 0.25 s after its image (after the next image): none unpaired."""
     client, node, log = graph
@@ -257,7 +258,6 @@ def last_counts(client):
     return latest_counts(client)
 
 
-@pytest.mark.slow
 def test_a_starved_node_stays_warn_in_diagnostics(graph):
     """A publisher whose QoS keeps its images away: WARN in every report while it lasts."""
     client, node, _ = graph

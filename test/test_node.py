@@ -46,6 +46,8 @@ from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 
+pytestmark = pytest.mark.slow   # starts bbpose_node as a process
+
 FRAMES = 4
 START_NS = 1_700_000_000 * 1_000_000_000
 OUT = '/bbpose_node'

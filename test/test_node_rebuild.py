@@ -38,6 +38,8 @@ from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros import node as node_module
 
+pytestmark = pytest.mark.slow   # starts bbpose_node as a process
+
 OUT = '/bbpose_node'
 MARKERS = f'{OUT}/markers'
 

@@ -22,6 +22,8 @@ import pytest
 from test_ros_support import NodeLog, REPO_ROOT, TIMEOUT_S, use_private_domain, weight_files
 from test_ros_support import write_params
 
+pytestmark = pytest.mark.slow   # starts bbpose_node as a process
+
 
 @pytest.fixture(scope='module')
 def weights(tmp_path_factory):

@@ -19,6 +19,7 @@ import sys
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+import pytest
 from sensor_msgs.msg import CameraInfo, Image
 from test_ros_support import GraphClient, use_private_domain
 
@@ -27,6 +28,8 @@ from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.conversions import image_to_rgb
+
+pytestmark = pytest.mark.slow   # runs bbpose play as a process
 
 FRAMES = 3
 

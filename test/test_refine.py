@@ -42,6 +42,8 @@ from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at
                                                     ViewpointModel)
 from bbpose_ros.core.render.reference import render_silhouette
 
+pytestmark = pytest.mark.slow   # viewpoint models of every mesh, real frames refined: ~30 s
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 NAMES = ('ape', 'driller', 'duck', 'holepuncher')
 BLANK = np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8)

@@ -24,6 +24,8 @@ from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, opengl_projection, RenderMesh
 from bbpose_ros.core.render.reference import render_depth, render_silhouette
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 NAMES = ('ape', 'driller')
 

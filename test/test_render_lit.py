@@ -26,6 +26,8 @@ from bbpose_ros.core.render.scene_light import Material, PointLight, SceneLights
     TexturedPlane
 from bbpose_ros.core.synth.table_scenes import look_at
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 # A camera 0.7 m from the world origin, 45 deg above the table z = 0.
 WORLD_TO_CAMERA = look_at(np.array([0.0, -0.5, 0.5]), np.zeros(3), 0.0)

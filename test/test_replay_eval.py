@@ -19,6 +19,7 @@ import math
 import subprocess
 import sys
 
+import pytest
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader
 from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_params
@@ -29,6 +30,8 @@ from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.video import read_video
+
+pytestmark = pytest.mark.slow   # runs bbpose replay-eval and bbpose_node as processes
 
 FRAMES = 3
 

@@ -181,6 +181,7 @@ def test_a_rebuild_swaps_config_and_pipeline_or_sets_the_values_back():
     assert rebuilder.config is None and rebuilder.pipeline is None
 
 
+@pytest.mark.slow   # waits out a pipeline build, ~10 s
 def test_a_build_begun_before_a_cleanup_is_thrown_away():
     gate = threading.Event()
     rebuilder = PipelineRebuilder(lambda config: gate.wait(10.0) and 'new', lambda v: None,

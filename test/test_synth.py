@@ -29,6 +29,8 @@ from bbpose_ros.core.synth import SynthConfig, SyntheticSample, SyntheticScenes
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.synth.torch_dataset import SyntheticSceneDataset
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 TARGETS = ('ape', 'cat', 'duck', 'glue', 'holepuncher')
 

@@ -24,6 +24,8 @@ from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth import SyntheticScenes
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 
 @pytest.fixture(autouse=True)
 def session_models(monkeypatch, lmo_models):

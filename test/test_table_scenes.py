@@ -35,6 +35,8 @@ from bbpose_ros.core.synth.table_crops import TableCrops
 from bbpose_ros.core.synth.table_scenes import polygons_overlap, TableScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 
+pytestmark = pytest.mark.slow   # renders with OpenGL
+
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 TARGETS = ('ape', 'duck', 'glue')
 # Few meshes keep the reference z-buffer and the stable poses quick.

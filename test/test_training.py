@@ -45,6 +45,7 @@ CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 CPU = TrainingDevice('cpu')
 
 
+@pytest.mark.slow   # trains
 @pytest.mark.parametrize('hypotheses', [1, 3])
 def test_tiny_qnet_run_lowers_the_loss(hypotheses):
     torch.manual_seed(0)
@@ -77,6 +78,7 @@ def _step(optimizer, loss_fn):
     return step
 
 
+@pytest.mark.slow   # trains
 def test_run_loop_checkpoints_and_resumes(tmp_path):
     net = torch.nn.Linear(2, 1)
     optimizer = torch.optim.SGD(net.parameters(), 0.1)
@@ -95,6 +97,7 @@ def test_run_loop_checkpoints_and_resumes(tmp_path):
     assert not (tmp_path / 'sim_to_real.png').exists()     # no real-frame figures logged
 
 
+@pytest.mark.slow   # trains
 def test_a_pretrained_trunk_learns_slower_on_its_imagenet_statistics(tmp_path):
     net = CenterBoxNet(DetectorConfig(OBJECTS[:2], backbone='lite0'))
     trunk = {id(p) for p in net.trunk.parameters()}
@@ -229,6 +232,7 @@ def test_candidate_targets_lead_to_the_true_box():
     assert not corrections[1].any()
 
 
+@pytest.mark.slow   # trains
 def test_tiny_verifier_run_lowers_the_loss():
     _, network, settings, mined = _mined()
     batches = VerifierBatches(mined, settings, 0)
@@ -354,6 +358,7 @@ def test_train_cli_refuses_a_window_or_input_size_off_the_grid(tmp_path, lmo_roo
     assert not (tmp_path / 'new').exists()
 
 
+@pytest.mark.slow   # trains
 def test_a_resumed_run_keeps_its_own_trunk_rate_and_refuses_other_groups(tmp_path):
     def run(scales, steps):
         net = torch.nn.Sequential(torch.nn.Linear(2, 2), torch.nn.Linear(2, 1))
@@ -371,6 +376,7 @@ def test_a_resumed_run_keeps_its_own_trunk_rate_and_refuses_other_groups(tmp_pat
         run([1.0], 6)
 
 
+@pytest.mark.slow   # trains
 def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
     cache = _fake_cache(np.random.default_rng(9), scenes=4)
     torch.manual_seed(1)

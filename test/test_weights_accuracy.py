@@ -70,6 +70,7 @@ def test_rotation_error_floor_with_ground_truth_boxes(pipeline, lmo_frames):
     assert report['mean']['re_median_deg'] <= ROTATION_MEDIAN_CEILING_DEG
 
 
+@pytest.mark.slow   # the dense net on real frames, ~5 s
 def test_the_shipped_dense_net_gives_candidates_and_masks(lmo_models, lmo_frames):
     options = PipelineOptions(inference_threads=2, pose_source='dense+qnet', dense_mask='amodal')
     pipeline = load_pipeline(lmo_models, options)
