@@ -38,6 +38,7 @@ from bbpose_ros.core.errors import InputError
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')
 DENSE_TRANSLATIONS = ('pnp', 'bbox_equation', 'both')
 DENSE_MASKS = ('amodal', 'visible', 'none')
+BOX_SOURCES = ('detector', 'dense_mask', 'both')
 BACKENDS = ('onnxruntime', 'torch')
 PRECISIONS = ('auto', 'fp32', 'int8')
 
@@ -113,6 +114,11 @@ class PipelineOptions:
     dense_mask: str = _setting(
         'none', "With refine: the refiner's foreground model, the dense net's predicted "
         'amodal or visible mask, or none (the colours).', choices=DENSE_MASKS)
+    box_source: str = _setting(
+        'detector', "The amodal box the Bounding Box Equation solves with: the detector's "
+        "(detector), the detector's corrected by the dense net's amodal mask on each "
+        "detection's crop (dense_mask; the dense net runs on every detection), or a "
+        'candidate from each for the refiner to choose (both).', choices=BOX_SOURCES)
     tracking: bool = _setting(
         False, 'Start each refined object from its pose in the previous frame and run the '
         'detector and Q-Net only when needed (needs refine).')
@@ -171,14 +177,20 @@ class PipelineOptions:
 
         With ``rotations_given`` (the ground truth replaces the rotations) its poses are not
         wanted, so it runs only where it would otherwise and its masks are used: as the
-        refiner's foreground or in choosing among refined candidates.
+        refiner's foreground or in choosing among refined candidates. Wherever its masks
+        correct the boxes (``box_source``) it runs, rotations given or not.
         """
         runs = self.uses_dense or (self.refine and self.dense_mask != 'none') or \
             self.ranks_by_mask
         if rotations_given:
-            return runs and self.refine and (
+            runs = runs and self.refine and (
                 self.dense_mask != 'none' or self.refine_mask_choice_weight > 0.0)
-        return runs
+        return runs or self.corrects_boxes
+
+    @property
+    def corrects_boxes(self) -> bool:
+        """Tell whether the dense net's amodal masks correct the detections' boxes."""
+        return self.box_source != 'detector'
 
     @property
     def candidates_per_detection(self) -> int:

@@ -24,8 +24,9 @@ Each stage is a callable, so learned stages and ground-truth oracles plug in ali
   well each explains the box;
 * the Bounding Box Equation for the translations (``bbox_equation``);
 * optionally the dense correspondences (``correspondences``): a pose per detection by PnP
-  over the predicted surface coordinates, as a further candidate, and predicted masks
-  for the refiner;
+  over the predicted surface coordinates, as a further candidate, predicted masks for the
+  refiner, and amodal masks that correct the detections' boxes (``box_correction``,
+  ``box_source``) before the rotations and the Bounding Box Equation;
 * optionally a refiner (``refinement.PoseRefiner``) that aligns each pose, or the few
   best hypotheses of each detection, with the image and keeps the best-scored one.
 
@@ -44,6 +45,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.latency import StageTimer
+from bbpose_ros.core.pipeline.box_correction import corrected_detections
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
 from bbpose_ros.core.pipeline.poses import (Detection, FrameResult, PoseEstimate,
                                             RotationHypotheses)
@@ -65,7 +67,7 @@ class PosePipeline:
         models: {name: ObjectModel} of the objects to report.
         options: the PipelineOptions the stages were built for; the pipeline reads
             ``candidates_per_detection``, ``uses_dense``, ``dense_translation``,
-            ``dense_mask`` and ``box_consistency_weight`` from it.
+            ``dense_mask``, ``box_source`` and ``box_consistency_weight`` from it.
         detector: callable image -> detections, or None when detections are always given.
         rotation_estimator: callable (image, camera, detections) -> (N, 3, 3) rotations or
             RotationHypotheses, or None when rotations are always given.
@@ -75,13 +77,15 @@ class PosePipeline:
             keeps the best-scored one per detection); given exactly when ``options.refine``.
         correspondences: a ``correspondences.DenseCorrespondenceEstimator``, or None (Q-Net's
             path alone): its masks guide the refiner, and with ``options.uses_dense`` its PnP
-            poses are candidates too (placed first: unrefined, a found PnP pose is reported).
+            poses are candidates too (placed first: unrefined, a found PnP pose is reported);
+            with ``options.corrects_boxes`` its amodal masks correct the boxes.
         selection: how the Bounding Box Equation chooses its touching points
             (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
         max_iterations: bound on the re-selections of 'direct_then_perspective'.
 
     Raises:
-        InputError: a refiner without ``options.refine``, or ``options.refine`` without one.
+        InputError: a refiner without ``options.refine``, or ``options.refine`` without one;
+            ``options.corrects_boxes`` without correspondences.
 
     """
 
@@ -97,6 +101,9 @@ class PosePipeline:
         if options.refine != (refiner is not None):
             raise InputError(f'options.refine is {options.refine} but the pipeline was given '
                              f'{"no" if refiner is None else "a"} refiner')
+        if options.corrects_boxes and correspondences is None:
+            raise InputError(f'options.box_source is {options.box_source} but the pipeline '
+                             'was given no dense correspondences')
         self.models = dict(models)
         self.options = options
         self._point_index = {name: i for i, name in enumerate(self.models)}
@@ -123,7 +130,9 @@ class PosePipeline:
                 the estimator.
 
         Returns:
-            A FrameResult; poses keep the detections' order.
+            A FrameResult; poses keep the detections' order. With ``box_source``
+            'dense_mask' or 'both' a pose's ``detection`` holds the box its translation was
+            solved with (the corrected one, or the detector's for the detector's candidate).
 
         """
         timer = StageTimer()
@@ -142,8 +151,18 @@ class PosePipeline:
             timer.lap('correspondences')
         # The amodal masks rank Q-Net's hypotheses and judge the refined candidates.
         amodal = None if dense is None else dense_masks(dense[0], 'amodal')
+        # Each box solved with (the corrected one first: unrefined, it is reported).
+        box_sets = [detections]
+        if dense is not None and self.options.corrects_boxes:
+            corrected = corrected_detections(detections, dense[0].amodal, dense[0].squares_uv,
+                                             self.correspondences.config.crop_size)
+            box_sets = [corrected] + ([detections] if self.options.box_source == 'both'
+                                      else [])
+            timer.lap('box_correction')
         source = 'given' if rotations is not None else 'qnet'
         if detections and rotations is None and self.rotation_estimator is not None:
+            # Q-Net sees the detector's crops: the corrected boxes' crops did not improve its
+            # rotations (docs/experiments.md).
             rotations = self.rotation_estimator(image_rgb, camera, detections)
             timer.lap('rotation')
         if detections and rotations is None and not (dense is not None and dense_poses):
@@ -151,7 +170,7 @@ class PosePipeline:
                              'given')
         groups = [[] for _ in detections]
         if dense is not None and dense_poses:
-            for k, pose in self._dense_candidates(camera, detections, dense[1]):
+            for k, pose in self._dense_candidates(camera, box_sets, dense[1]):
                 groups[k].append(pose)
         if rotations is not None and detections:
             count = 1
@@ -160,14 +179,15 @@ class PosePipeline:
                     self.hypothesis_selector = HypothesisSelector(
                         self.models, self.options.box_consistency_weight)
                 rotations = self.hypothesis_selector.ranked(
-                    camera, detections, rotations, self.options.candidates_per_detection,
+                    camera, box_sets[0], rotations, self.options.candidates_per_detection,
                     amodal)
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
-            solved = self.translations(camera, [d for d in detections for _ in range(count)],
-                                       np.reshape(rotations, (-1, 3, 3)), source)
-            for k, pose in enumerate(solved):
-                groups[k // count].append(pose)
+            for boxed in box_sets:
+                solved = self.translations(camera, [d for d in boxed for _ in range(count)],
+                                           np.reshape(rotations, (-1, 3, 3)), source)
+                for k, pose in enumerate(solved):
+                    groups[k // count].append(pose)
         timer.lap('translation')
         found = [k for k, group in enumerate(groups) if group]
         if self.refiner is None or not found:
@@ -184,16 +204,21 @@ class PosePipeline:
         kind = self.options.dense_mask
         return None if kind == 'none' else dense_masks(maps, kind)
 
-    def _dense_candidates(self, camera, detections, dense_poses):
-        """Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation."""
+    def _dense_candidates(self, camera, box_sets, dense_poses):
+        """
+        Yield (detection index, PoseEstimate) of the PnP poses, per dense_translation.
+
+        PnP's own translation once, the Bounding Box Equation's with each box set's boxes.
+        """
         found = [(k, p) for k, p in enumerate(dense_poses) if p is not None]
         if self.options.dense_translation in ('pnp', 'both'):
-            yield from ((k, PoseEstimate(detections[k], p.rotation, p.translation,
+            yield from ((k, PoseEstimate(box_sets[0][k], p.rotation, p.translation,
                                          source='pnp')) for k, p in found)
         if self.options.dense_translation in ('bbox_equation', 'both') and found:
-            solved = self.translations(camera, [detections[k] for k, _ in found],
-                                       [p.rotation for _, p in found], 'pnp_rotation')
-            yield from zip([k for k, _ in found], solved)
+            for boxed in box_sets:
+                solved = self.translations(camera, [boxed[k] for k, _ in found],
+                                           [p.rotation for _, p in found], 'pnp_rotation')
+                yield from zip([k for k, _ in found], solved)
 
     def translations(self, camera: CameraIntrinsics, detections: Sequence[Detection],
                      rotations: npt.ArrayLike, source: str = 'qnet') -> list[PoseEstimate]:
