@@ -35,6 +35,11 @@ REPORT_COMMANDS = {
     'eval_detector_dense': f'{_EVAL} --boxes detector --pose-source dense+qnet',
     'eval_detector_gtrot': f'{_EVAL} --boxes detector --rotation gt',
     'eval_detector_gtrot_norefine': f'{_EVAL} --boxes detector --rotation gt --no-refine',
+    'eval_detector_boxmask': f'{_EVAL} --boxes detector --box-source dense_mask',
+    'eval_detector_gtrot_boxmask': f'{_EVAL} --boxes detector --rotation gt '
+                                   '--box-source dense_mask',
+    'eval_detector_gtrot_norefine_boxmask': f'{_EVAL} --boxes detector --rotation gt '
+                                            '--no-refine --box-source dense_mask',
     'eval_gt': f'{_EVAL} --boxes gt',
     'eval_gt_fp32': f'{_EVAL} --boxes gt --inference-precision fp32',
     'eval_gt_norefine': f'{_EVAL} --boxes gt --no-refine',
@@ -69,6 +74,11 @@ _RUNS = (
     ('detector boxes, `--pose-source dense+qnet`', 'eval_detector_dense'),
     ('detector boxes, exact rotation, refined', 'eval_detector_gtrot'),
     ('detector boxes, exact rotation, not refined', 'eval_detector_gtrot_norefine'),
+    ('detector boxes, `--box-source dense_mask`', 'eval_detector_boxmask'),
+    ('detector boxes, `--box-source dense_mask`, exact rotation, refined',
+     'eval_detector_gtrot_boxmask'),
+    ('detector boxes, `--box-source dense_mask`, exact rotation, not refined',
+     'eval_detector_gtrot_norefine_boxmask'),
     ('ground-truth boxes, Q-Net, refined', 'eval_gt'),
     ('ground-truth boxes, Q-Net, not refined', 'eval_gt_norefine'),
     ('ground-truth boxes, `--pose-source dense+qnet`', 'eval_gt_dense'),
