@@ -98,6 +98,10 @@ class PipelineOptions:
     refine_occlusions: bool = _setting(
         True, "The poses of a frame hide each other's contour lines where one is nearer the "
         'camera (the image shows the occluder there).')
+    refine_local_colors: int = _setting(
+        0, "Local colour models (RBOT's): each contour line's foreground and background "
+        'colours are sampled on the lines up to this many places before and after it (of '
+        "a view's 200); 0: one colour model per pose.", 0, 50)
     refine_mask_choice_weight: float = _setting(
         8.0, "Where the dense net runs, how much each refined candidate's silhouette "
         'agreement (soft IoU, 0..1) with its amodal mask counts beside the refinement score '

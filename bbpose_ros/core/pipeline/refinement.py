@@ -250,11 +250,12 @@ def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:
 
 
 def refiner_config(options: PipelineOptions) -> RefinerConfig:
-    """Return the shipped RefinerConfig with the options' prior, threads and occlusions."""
+    """Return the shipped RefinerConfig with the options' prior, threads, occlusions, colours."""
     return RefinerConfig(prior_rotation_deg=options.refine_prior_deg,
                          prior_translation_m=options.refine_prior_mm / 1000.0,
                          threads=options.refine_threads,
-                         model_occlusions=options.refine_occlusions)
+                         model_occlusions=options.refine_occlusions,
+                         local_color_lines=options.refine_local_colors)
 
 
 def load_pose_refiner(models: Mapping[str, ObjectModel], options: PipelineOptions,

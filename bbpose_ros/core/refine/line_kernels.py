@@ -27,7 +27,8 @@ broadcasts that took many large temporary arrays a call, so these loops run comp
 * ``contour_distributions``: along each line, the segments' foreground probabilities from
   the colour model (and a predicted mask), then the discrete distribution of where the
   contour lies on the line, its mean and variance;
-* ``line_color_histograms``: the colour histograms just inside and outside each contour;
+* ``line_color_histograms``: the colour histograms just inside and outside each contour
+  (and, for local colour models, each line's samples);
 * ``gradient_hessian``: each pose's Gauss-Newton gradient and Hessian from its lines.
 
 Conventions are the modality's: pixel coordinates continuous with pixel centres at
@@ -214,10 +215,21 @@ def _mask_log_odds(mask_log_odds, squares, pose, col, row, outside):
     return mask_log_odds[pose, j, i]
 
 
+@numba.njit(**_NUMBA)
+def _count_samples(samples, sample_counts, pose, line, counts, totals, sign):
+    """Add (sign 1) or remove (-1) one line's colour samples to or from a window's counts."""
+    for side in range(2):
+        taken = sample_counts[pose, line, side]
+        for i in range(taken):
+            counts[side, samples[pose, line, side, i]] += sign
+        totals[side] += sign * taken
+
+
 @numba.njit(parallel=True, **_NUMBA)
 def contour_distributions(bins, width, height, centres, normals, valid, hist_f, hist_b, scale,
                           segments, h_b, h_diff, positions, min_variance, max_log_ratio,
-                          mask_log_odds, mask_squares, mask_weight, mask_outside):
+                          mask_log_odds, mask_squares, mask_weight, mask_outside,
+                          samples, sample_counts, window, chunk, prior_pixels):
     """
     Where the contour lies on each line: (N, P) mean, (N, P) variance, (N, P, D) distribution.
 
@@ -241,6 +253,16 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
         mask_squares: (N, 4) float64 each mask's square [u0, v0, u1, v1].
         mask_weight: float32 weight of the mask against the colours.
         mask_outside: float32 log-odds outside a mask's square.
+        samples: (N, P, 2, S) uint16 colour bins sampled inside (0) and outside (1) each
+            line's contour (``line_color_histograms``), or (0, P, 2, S): one colour model
+            per pose (``hist_f``, ``hist_b``).
+        sample_counts: (N, P, 2) int32 how many of each line's samples are set; all 0 for
+            a pose: its global model.
+        window: with samples, a line's colour model counts the samples of the lines up to
+            this many places before and after it along the contour (the outline order).
+        chunk: lines that share one window (it slides by this many lines).
+        prior_pixels: the pose's global model counts as this many pixels of a local one,
+            so that a window with few samples falls back to it.
 
     Line k of pose n samples, for segment s and pixel i, the point centre + (s * scale + i
     - half) * normal with half = (segments * scale - 1) / 2, in float32; a segment's
@@ -261,16 +283,39 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
     distribution = np.empty((count, lines, distributions))
     bin_count = hist_f.shape[1]
     last_pixel = width * height - 1
+    local = samples.shape[0] > 0
+    # A window never holds a line twice: at most the whole contour.
+    reach = max(min(window, (lines - chunk) // 2), 0)
     for n in numba.prange(count):
         seg_f = np.empty(segments, dtype=np.float32)
         log_ratio = np.empty(bin_count, dtype=np.float32)
         # log(p_f / (1 - p_f)) with p_f = f / (f + b) per colour bin, clipped; 0 for a
         # colour neither histogram has seen (most of them: a histogram holds a few hundred).
-        for b in range(bin_count):
+        # Local models compute theirs from the window's counts.
+        for b in range(0 if local else bin_count):
             f, g = hist_f[n, b], hist_b[n, b]
             log_ratio[b] = 0.0 if f == 0.0 and g == 0.0 else min(max(
                 math.log(f + tiny) - math.log(g + tiny), -max_log_ratio), max_log_ratio)
+        # With local models: the window's pixel counts per bin, and its log-odds computed
+        # when first read (stamped with the chunk they belong to).
+        local_bins = bin_count if local else 1
+        counts = np.zeros((2, local_bins), dtype=np.int32)
+        local_ratio = np.empty(local_bins, dtype=np.float32)
+        stamp = np.full(local_bins, -1, dtype=np.int64)
+        totals = np.zeros(2, dtype=np.int64)
+        low, high = -reach, -reach - 1         # lines in the window (unwrapped indices)
+        inverse_f = inverse_b = 0.0
         for k in range(lines):
+            if local and k % chunk == 0:
+                new_low, new_high = k - reach, min(k + chunk, lines) - 1 + reach
+                while high < new_high:
+                    high += 1
+                    _count_samples(samples, sample_counts, n, high % lines, counts, totals, 1)
+                while low < new_low:
+                    _count_samples(samples, sample_counts, n, low % lines, counts, totals, -1)
+                    low += 1
+                inverse_f = 1.0 / (totals[0] + prior_pixels)
+                inverse_b = 1.0 / (totals[1] + prior_pixels)
             if not valid[n, k]:
                 distribution[n, k, :] = 1.0 / distributions
                 mean[n, k], variance[n, k] = 0.0, min_variance
@@ -285,7 +330,18 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
                     # rounds); the guard only keeps a float32 rounding at the last pixel in.
                     col = int(start_u + step_u * offsets[i])
                     row = int(start_v + step_v * offsets[i])
-                    value = log_ratio[bins[min(row * width + col, last_pixel)]]
+                    bin_ = bins[min(row * width + col, last_pixel)]
+                    if local:
+                        if stamp[bin_] != k // chunk:
+                            f = (counts[0, bin_] + prior_pixels * hist_f[n, bin_]) * inverse_f
+                            g = (counts[1, bin_] + prior_pixels * hist_b[n, bin_]) * inverse_b
+                            local_ratio[bin_] = 0.0 if f == 0.0 and g == 0.0 else min(max(
+                                math.log(f + tiny) - math.log(g + tiny), -max_log_ratio),
+                                max_log_ratio)
+                            stamp[bin_] = k // chunk
+                        value = local_ratio[bin_]
+                    else:
+                        value = log_ratio[bin_]
                     if use_masks:
                         value = keep * value + mask_weight * _mask_log_odds(
                             mask_log_odds, mask_squares, n, col, row, mask_outside)
@@ -314,7 +370,7 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
 
 @numba.njit(parallel=True, **_NUMBA)
 def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b, seen,
-                          offsets, max_run, bin_count):
+                          offsets, max_run, bin_count, samples, sample_counts):
     """
     Colour histograms on each pose's lines, inside and outside the contour.
 
@@ -334,6 +390,9 @@ def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b,
         offsets: (K,) float32 distances from the contour sampled, pixels.
         max_run: samples lie closer than min(run - 1, max_run) to the contour.
         bin_count: colour bins (BINS).
+        samples: (N, P, 2, K) uint16 out: each line's sampled bins inside (0) and outside
+            (1), in the order of ``offsets``, or (0, P, 2, K): not kept.
+        sample_counts: (N, P, 2) int32 out: how many of them are set (with ``samples``).
 
     A sample at distance o reads pixel floor(centre + 0.5 -+ o * normal) (inside: minus),
     when it lies in the image.
@@ -343,9 +402,12 @@ def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b,
     totals = np.zeros((count, 2), dtype=np.int64)
     hist_f = np.zeros((count, bin_count))
     hist_b = np.zeros((count, bin_count))
+    keep = samples.shape[0] > 0
     for n in numba.prange(count):
         counts = np.zeros((2, bin_count), dtype=np.int32)
         for k in range(lines):
+            if keep:
+                sample_counts[n, k, 0] = sample_counts[n, k, 1] = 0
             if not seen[n, k]:
                 continue
             start_u = np.float32(centres[n, k, 0] + 0.5)
@@ -362,7 +424,11 @@ def line_color_histograms(bins, width, height, centres, normals, runs_f, runs_b,
                     v = start_v + step_v * offset
                     if not (u >= 0.0 and v >= 0.0 and u < width and v < height):
                         continue        # off the image (or not finite)
-                    counts[side, bins[int(v) * width + int(u)]] += 1
+                    bin_ = bins[int(v) * width + int(u)]
+                    counts[side, bin_] += 1
+                    if keep:
+                        samples[n, k, side, sample_counts[n, k, side]] = bin_
+                        sample_counts[n, k, side] += 1
         totals[n, 0], totals[n, 1] = counts[0].sum(), counts[1].sum()
         for b in range(bin_count):
             if counts[0, b]:

@@ -49,6 +49,7 @@ from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
 
 # A pose with fewer valid correspondence lines in an iteration stops: 'too_few_lines'.
+LOCAL_COLORS_MAX_SCALE = 2  # local colour models serve the finer scales (pixels a segment)
 MIN_LINES = 6
 
 
@@ -84,6 +85,13 @@ class RefinerConfig:
             0: one per core.
         model_occlusions: the poses refined together hide each other's contour where one
             is nearer the camera (the lines there see the occluder, not the object).
+        local_color_lines: > 0: local colour models (RBOT's): each line's foreground and
+            background colours are those sampled on the contour lines up to this many
+            places before and after it (of the view's points), the pose's histograms a
+            prior where they are few (``region_modality``); 0: one colour model per pose.
+            They serve the scales up to ``LOCAL_COLORS_MAX_SCALE`` pixels a segment: at the
+            coarse scales the start is far, and a local model learned at a wrong contour
+            confirms it. A start with given colours (a track's) keeps its one model.
 
     """
 
@@ -101,6 +109,7 @@ class RefinerConfig:
     prior_translation_m: float = 0.0
     threads: int = 0
     model_occlusions: bool = True
+    local_color_lines: int = 0
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -120,6 +129,9 @@ class RefinerConfig:
                              f'got {self.prior_rotation_deg} deg, {self.prior_translation_m} m')
         if not 0.0 <= self.mask_weight <= 1.0:
             raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
+        if self.local_color_lines < 0:
+            raise InputError('local_color_lines must be >= 0 (0: one colour model per pose), '
+                             f'got {self.local_color_lines}')
         if self.threads < 0:
             raise InputError(f'refinement threads must be >= 0 (0: one per core), got '
                              f'{self.threads}')
@@ -229,7 +241,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                       np.ones(count, bool) if occluders is None
                       else np.asarray(occluders, dtype=bool).reshape(count))
     modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
-                              config.mask_weight, occlusions)
+                              config.mask_weight, occlusions, config.local_color_lines)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
@@ -244,7 +256,9 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     # A given colour model (a track's) is kept through the iterations, as SRT3D does within
     # a frame; one measured around the start is re-measured as the pose improves.
     learning = np.array([h is None for h in given])
-    fresh_f, fresh_b, seen = modality.line_colors(rotation, translation)
+    fresh_f, fresh_b, seen, local = modality.local_colors(rotation, translation)
+    if local is not None:
+        local.counts[~learning] = 0     # a given colour model stays the pose's only one
     status[(status == 'ok') & ~seen] = 'outside_image'
     hist_f = np.stack([fresh_f[k] if h is None else h.foreground for k, h in enumerate(given)])
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
@@ -258,7 +272,8 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             break
         scale = config.scales[min(iteration, len(config.scales) - 1)]
         sigma = config.standard_deviations[min(iteration, len(config.standard_deviations) - 1)]
-        lines = modality.lines(rotation, translation, hist_f, hist_b, scale)
+        lines = modality.lines(rotation, translation, hist_f, hist_b, scale,
+                               local=local if scale <= LOCAL_COLORS_MAX_SCALE else None)
         few = active & (lines.valid.sum(axis=1) < MIN_LINES)
         status[few] = 'too_few_lines'
         active &= ~few
@@ -274,12 +289,16 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             status[behind] = 'behind_camera'
             active &= ~behind
         if config.histogram_rate > 0.0:
-            seen_at_end = seen_f, seen_b, seen = modality.line_colors(rotation, translation)
+            seen_f, seen_b, seen, now_local = modality.local_colors(rotation, translation)
+            seen_at_end = seen_f, seen_b, seen
             update = (active & seen & learning)[:, None]
             rate = config.histogram_rate
             for model, now in ((hist_f, seen_f), (hist_b, seen_b)):
                 np.copyto(model, now if rate == 1.0 else (1.0 - rate) * model + rate * now,
                           where=update)
+            if local is not None:       # the lines' samples: the latest ones
+                local.samples[update[:, 0]] = now_local.samples[update[:, 0]]
+                local.counts[update[:, 0]] = now_local.counts[update[:, 0]]
     scores = modality.scores(rotation, translation)
     if start_scores is not None:        # a refinement that lowers the score is not taken
         back = (status == 'ok') & (start_scores > scores)

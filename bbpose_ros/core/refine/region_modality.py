@@ -22,6 +22,15 @@ The region modality (SRT3D): correspondence lines across the projected contour.
   probability from the colour histograms; a smoothed step function slid along the line gives
   a discrete distribution of where the contour is on that line: its mean and variance; a
   predicted silhouette mask (``foreground_masks``) may stand in for or mix with the colours;
+* the colour model is one pair of histograms per pose, or local (``local_window``; RBOT's
+  localized "tclc" histograms, Tjaden et al. 2018): each line's colours are those sampled on
+  the lines near it along the contour, with the pose's histograms as a prior of
+  ``LOCAL_PRIOR_PIXELS`` pixels. One pair of histograms gathers its background from all
+  around the object, dark shadows and clutter included; where the object is darker than the
+  background beside it, its own colours then look ambiguous while the bright background is
+  confidently background, and the contour's distribution leans inwards (the silhouette fits
+  small, the pose drifts away from the camera). A local model sees the colours beside
+  each line only;
 * ``RegionModality.gradient_hessian`` turns them into the pull on the 6-DoF pose that
   ``optimizer.newton_update`` solves for.
 
@@ -83,6 +92,27 @@ _MAX_LOG_RATIO = math.log((1.0 - 1e-4) / 1e-4)
 _HISTOGRAM_OFFSETS = np.arange(0.5, MAX_HISTOGRAM_RUN_PX, HISTOGRAM_STRIDE_PX,
                                dtype=np.float32)
 _NO_MASKS, _NO_SQUARES = np.zeros((0, 1, 1), dtype=np.float32), np.zeros((0, 4))
+_NO_SAMPLES = np.zeros((0, 1, 2, len(_HISTOGRAM_OFFSETS)), dtype=np.uint16)
+_NO_COUNTS = np.zeros((0, 1, 2), dtype=np.int32)
+LOCAL_CHUNK_LINES = 2           # lines that share one local colour window
+LOCAL_PRIOR_PIXELS = 64.0       # the global colours count as this many pixels of a window
+
+
+@dataclass
+class LocalColors:
+    """
+    What local colour models are made of: each line's own colour samples (RBOT's tclc).
+
+    Attributes:
+        samples: (N, P, 2, S) uint16 colour bins sampled inside (0) and outside (1) each
+            line's contour, S per side at most.
+        counts: (N, P, 2) int32 how many are set; all 0 for a pose that keeps its global
+            colour model (e.g. a track's).
+
+    """
+
+    samples: np.ndarray
+    counts: np.ndarray
 
 
 class RegionModality:
@@ -104,14 +134,18 @@ class RegionModality:
             instances' poses behind it (``line_kernels.hide_occluded``; ICG's model
             occlusions, with the silhouettes of the poses themselves); None: no pose hides
             another.
+        local_window: > 0: local colour models (``LocalColors``) of the lines up to this
+            many places before and after each line along the contour; 0: one per pose.
 
     """
 
     def __init__(self, models: Sequence[ViewpointModel], bins: np.ndarray,
                  camera: CameraIntrinsics, min_continuous_px: float,
                  masks: ForegroundMasks | None = None, mask_weight: float = 1.0,
-                 occlusions: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 occlusions: tuple[np.ndarray, np.ndarray] | None = None,
+                 local_window: int = 0) -> None:
         self.occlusions = occlusions
+        self.local_window = int(local_window)
         self.min_continuous_px = min_continuous_px
         self.masks = masks
         self.mask_weight = float(mask_weight)
@@ -164,16 +198,35 @@ class RegionModality:
             ((N, BINS) foreground, (N, BINS) background, (N,) bool: enough pixels seen).
 
         """
+        return self.local_colors(rotation, translation, chosen)[:3]
+
+    def local_colors(self, rotation, translation, chosen=None):
+        """
+        ``line_colors`` and, with ``local_window``, the lines' own samples.
+
+        Returns:
+            (as ``line_colors``, then LocalColors, or None without ``local_window``).
+
+        """
         _, centres, normals, runs_f, runs_b, in_front = self.project(rotation, translation)
         if chosen is not None:
             in_front = in_front & chosen
+        count = len(centres) if self.local_window > 0 else 0
+        local = LocalColors(
+            np.zeros((count, self.lines_per_view, 2, len(_HISTOGRAM_OFFSETS)), np.uint16),
+            np.zeros((count, self.lines_per_view, 2), np.int32))
         hist_f, hist_b, totals = line_kernels.line_color_histograms(
             self.bins, self.camera.width, self.camera.height, centres, normals, runs_f, runs_b,
-            in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS)
-        return hist_f, hist_b, (totals >= 10).all(axis=1)
+            in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS, local.samples,
+            local.counts)
+        return hist_f, hist_b, (totals >= 10).all(axis=1), local if count else None
 
-    def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None):
-        """Sample the correspondence lines of every pose at ``scale`` (see CorrespondenceLines)."""
+    def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None, local=None):
+        """
+        Sample the correspondence lines of every pose at ``scale`` (see CorrespondenceLines).
+
+        ``local``: LocalColors (with ``local_window``), or None: ``hist_f``, ``hist_b`` alone.
+        """
         points, centres, normals, runs_f, runs_b, in_front = self.project(rotation,
                                                                           translation)
         camera = self.camera
@@ -193,7 +246,10 @@ class RegionModality:
             LINE_SEGMENTS, _H_B32, _H_DIFF32, _POSITIONS, MIN_VARIANCE, _MAX_LOG_RATIO,
             _NO_MASKS if masks is None else masks.log_odds_grid,
             _NO_SQUARES if masks is None else masks.squares_uv.astype(np.float64),
-            np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS))
+            np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS),
+            _NO_SAMPLES if local is None else local.samples,
+            _NO_COUNTS if local is None else local.counts, self.local_window,
+            LOCAL_CHUNK_LINES, LOCAL_PRIOR_PIXELS)
         return CorrespondenceLines(valid, points, centres, normals, mean, variance, distribution)
 
     def scores(self, rotation, translation):
@@ -205,8 +261,8 @@ class RegionModality:
         learned on the even ones.
         """
         even = np.arange(self.lines_per_view) % 2 == 0
-        hist_f, hist_b, seen = self.line_colors(rotation, translation, even)
-        lines = self.lines(rotation, translation, hist_f, hist_b, 1, ~even)
+        hist_f, hist_b, seen, local = self.local_colors(rotation, translation, even)
+        lines = self.lines(rotation, translation, hist_f, hist_b, 1, ~even, local)
         agreeing = (lines.distribution[..., _NEAR].sum(axis=-1) >= 0.5) & lines.valid
         return np.where(seen, agreeing.sum(axis=1) / np.count_nonzero(~even), 0.0)
 
