@@ -258,11 +258,13 @@ class RegionModality:
 
         Colour models fitted to a few thousand pixels would explain almost any silhouette,
         so the score is cross-validated: the lines of odd index are judged with colours
-        learned on the even ones.
+        learned on the even ones. It is judged with one colour model per pose also where the
+        lines are fitted with local ones: a local model learned at a wrong contour would
+        vouch for it, and the score stays the same measure whatever the refiner fitted with.
         """
         even = np.arange(self.lines_per_view) % 2 == 0
-        hist_f, hist_b, seen, local = self.local_colors(rotation, translation, even)
-        lines = self.lines(rotation, translation, hist_f, hist_b, 1, ~even, local)
+        hist_f, hist_b, seen = self.line_colors(rotation, translation, even)
+        lines = self.lines(rotation, translation, hist_f, hist_b, 1, ~even)
         agreeing = (lines.distribution[..., _NEAR].sum(axis=-1) >= 0.5) & lines.valid
         return np.where(seen, agreeing.sum(axis=1) / np.count_nonzero(~even), 0.0)
 
