@@ -14,14 +14,13 @@
 
 """The docs' generated tables match the reports in docs/reports/ (``bbpose docs --check``)."""
 
-import argparse
 import json
 from pathlib import Path
 import shutil
 
 import pytest
 
-from bbpose_ros.cli import docs as docs_cli
+from bbpose_ros.cli.main import main
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.doc_tables import REPORT_COMMANDS, TABLES
 from bbpose_ros.core.eval.report_tables import (
@@ -41,7 +40,7 @@ def _copy_docs(tmp_path):
 
 def test_committed_docs_match_their_reports(capsys):
     assert check_docs(REPO_ROOT, TABLES) == []
-    assert docs_cli.run(argparse.Namespace(check=True, root=REPO_ROOT)) == 0
+    assert main(['docs', '--check', '--root', str(REPO_ROOT)]) == 0
 
 
 def test_every_report_a_table_reads_is_committed_with_its_command():
@@ -62,7 +61,7 @@ def test_a_changed_figure_is_named_and_make_docs_puts_it_back(tmp_path, capsys):
     assert len(named) == len(problems)
     assert {'readme_accuracy', 'results_runs', 'results_detector'} <= named
     assert all('eval_detector' in TABLES[name].reports() for name in named)
-    assert docs_cli.run(argparse.Namespace(check=True, root=root)) == 1
+    assert main(['docs', '--check', '--root', str(root)]) == 1
     assert 'readme_accuracy' in capsys.readouterr().err
     written, problems = write_docs(root, TABLES)
     assert problems == [] and 'README.md' in written
@@ -108,3 +107,11 @@ def test_a_table_refuses_bench_reports_of_two_cpus(tmp_path):
         caption(table, report_loader(tmp_path))
     one = RunsTable('doc.md', (Column('fps', ('fps',)),), (('a', 'a'),))
     assert 'CPU one' in caption(one, report_loader(tmp_path))
+
+
+def test_an_unknown_report_to_run_is_refused_before_anything_runs(tmp_path, capsys):
+    root = _copy_docs(tmp_path)
+    before = {p.name: p.read_bytes() for p in (root / 'docs' / 'reports').iterdir()}
+    assert main(['docs', '--run', 'eval_detector', 'no_such_report', '--root', str(root)]) == 2
+    assert 'unknown report(s) no_such_report' in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in (root / 'docs' / 'reports').iterdir()} == before

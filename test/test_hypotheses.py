@@ -73,8 +73,8 @@ def test_pipeline_chooses_a_hypothesis_before_the_translation(lmo_frames, lmo_mo
     result = pipeline.estimate(frame.load_image(), frame.camera, detections)
     assert 'hypothesis_selection' in result.timings_ms
     chosen = np.stack([pose.rotation for pose in result.poses])
-    np.testing.assert_array_equal(
-        chosen, HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(frame.camera, detections, hypotheses))
+    selector = HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)
+    np.testing.assert_array_equal(chosen, selector(frame.camera, detections, hypotheses))
 
 
 def test_box_misfit_is_the_largest_residual_over_the_longest_side():
@@ -102,4 +102,5 @@ def test_bad_weight_is_refused(weight):
 def test_hypotheses_must_match_the_detections(lmo_frames, lmo_models):
     frame, detections, hypotheses = next(real_hypotheses(lmo_frames, lmo_models))
     with pytest.raises(InputError, match=f'for {len(detections) - 1} detections'):
-        HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(frame.camera, detections[1:], hypotheses)
+        HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(
+            frame.camera, detections[1:], hypotheses)

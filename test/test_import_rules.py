@@ -122,8 +122,6 @@ def test_layers_import_one_way(layer, forbidden):
     assert _violations(layer, forbidden) == []
 
 
-@pytest.mark.xfail(strict=True, reason='bench.py still takes DEFAULT_PARAMS and latencies_ms '
-                   'from replay_eval (now in cli.graph.replay, core.eval.recorded_poses)')
 def test_no_command_imports_another():
     commands = [f'bbpose_ros.cli.{name}' for name in SUBCOMMANDS]
     offenders = sorted(f'{module} imports {name}' for module, names in MODULES.items()

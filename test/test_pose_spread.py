@@ -17,7 +17,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.eval.pose_spread import MAD_TO_SIGMA, pose_errors, spread_of
+from bbpose_ros.core.eval.spread import MAD_TO_SIGMA, pose_errors, spread_of
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
 

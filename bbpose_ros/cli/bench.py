@@ -30,12 +30,13 @@ from std_msgs.msg import Header
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
+from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
-from bbpose_ros.cli.replay_eval import DEFAULT_PARAMS, latencies_ms
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
+from bbpose_ros.core.eval.recorded_poses import latencies_ms
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker

@@ -17,7 +17,7 @@
 
 Runs the pipeline with the node's default settings (detector boxes, Q-Net, refinement)
 over every frame of a BOP dataset (default: the LM-O development frames) and writes, per
-object, the spread of its poses around the truth (``core.eval.pose_spread``) to
+object, the spread of its poses around the truth (``core.eval.spread``) to
 ``bbpose_ros/weights/pose_spread.json``, which ``ros.detections`` reads.
 """
 
@@ -30,7 +30,7 @@ from tqdm import tqdm
 from bbpose_ros.cli.common import add_dataset_argument
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.eval.pose_spread import pose_errors, spread_of
+from bbpose_ros.core.eval.spread import pose_errors, spread_of
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline

@@ -43,8 +43,7 @@ from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
-# latencies_ms: bench.py still imports it from here.
-from bbpose_ros.core.eval.recorded_poses import ground_truth_instances, latencies_ms  # noqa: F401
+from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
 from bbpose_ros.core.eval.recorded_poses import recording_report, score_recording
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.video import check_video_path, write_video
