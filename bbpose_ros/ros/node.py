@@ -78,7 +78,7 @@ from tf2_msgs.msg import TFMessage
 from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
-from bbpose_ros.core.data.models import bop_object_ids
+from bbpose_ros.core.data.models import bop_object_ids, names_source
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
@@ -405,7 +405,8 @@ class BBPoseNode(LifecycleNode):
         unknown = [name for name in names if name not in known]
         if unknown:
             raise InputError(f'parameter objects: {", ".join(unknown)} not in '
-                             f'{self.config.dataset_dir} (known: {", ".join(known)})')
+                             f'{names_source(self.config.dataset_dir)} (known: '
+                             f'{", ".join(known)})')
 
     def _set_back(self, values: dict[str, Any]) -> None:
         """Set parameters back to ``values`` ({name: value}): a failed rebuild's."""

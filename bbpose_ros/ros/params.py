@@ -156,8 +156,9 @@ PARAMETERS = {
         True, 'Configure and activate at start; false: wait in the unconfigured state for '
         'the lifecycle services.', 'start'),
     'objects': ParameterSpec(
-        list(LMO_OBJECTS), 'Names of the objects to report (BOP LineMod names, e.g. ape); one '
-        'pose topic each.', 'pipeline', check=_check_objects),
+        list(LMO_OBJECTS), "Names of the objects to report (the dataset's: "
+        "models/models_names.json, else LineMod's by BOP id, e.g. ape); one pose topic each.",
+        'pipeline', check=_check_objects),
     'dataset_dir': ParameterSpec(
         '', 'BOP dataset folder with models/ (meshes in mm, models_info.json) and optionally '
         'models_eval/; empty: $BBPOSE_DATASET, else ../shared/datasets/lmo.', 'configure',

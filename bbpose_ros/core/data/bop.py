@@ -29,7 +29,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.data.models import LINEMOD_OBJECTS, load_bop_models, MM_TO_M, ObjectModel
+from bbpose_ros.core.data.models import fallback_object_name, load_bop_models, MM_TO_M, \
+    object_names, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import nearest_rotation
@@ -143,13 +144,19 @@ def _optional_box(info, key, scene_dir, where):
     return bop_box_to_uv(_field(info, key, scene_dir / 'scene_gt_info.json', where, (4,)))
 
 
+def split_names(root: Path | str) -> list[str]:
+    """Sorted names of a BOP folder's splits: its subfolders holding scene folders (NNNNNN)."""
+    return sorted(path.name for path in Path(root).iterdir() if path.is_dir() and any(
+        scene.is_dir() and scene.name.isdigit() for scene in path.iterdir()))
+
+
 class BopDataset:
     """
     A BOP dataset folder: ``camera.json``, ``models/``, ``<split>/<scene>/`` per scene.
 
     Scenes hold ``rgb/``, ``scene_camera.json``, ``scene_gt.json`` and
-    ``scene_gt_info.json``. Only objects named in LINEMOD_OBJECTS get their common name;
-    others are called ``obj_NNNNNN``.
+    ``scene_gt_info.json``. Instances are named by the dataset's names table
+    (``object_names``); an id it lacks gets ``fallback_object_name``.
     """
 
     def __init__(self, root: Path | str, split: str = 'test') -> None:
@@ -158,8 +165,11 @@ class BopDataset:
             raise InputError(f'dataset folder not found: {self.root}')
         self.split_dir = self.root / split
         if not self.split_dir.is_dir():
-            raise InputError(f'dataset split folder not found: {self.split_dir}')
+            found = ', '.join(split_names(self.root)) or 'none'
+            raise InputError(f'dataset split folder not found: {self.split_dir} (splits in '
+                             f'{self.root}: {found})')
         self.camera_size = self._image_size()
+        self.names = object_names(self.root)
 
     def _image_size(self):
         camera_path = self.root / 'camera.json'
@@ -203,7 +213,8 @@ class BopDataset:
             k = _field(cameras[key], 'cam_K', scene_dir / 'scene_camera.json',
                        f'image {image_id}', (3, 3))
             camera = CameraIntrinsics.from_k(k, width, height)
-            instances = self._instances(scene_dir, key, gts.get(key, []), infos.get(key, []))
+            instances = self._instances(scene_dir, key, gts.get(key, []), infos.get(key, []),
+                                        self.names)
             frames.append(BopFrame(scene_id, image_id, self._image_path(scene_dir, image_id),
                                    camera, instances))
         return frames
@@ -217,7 +228,7 @@ class BopDataset:
         return scene_dir / 'rgb' / f'{image_id:06d}.png'
 
     @staticmethod
-    def _instances(scene_dir, key, gts, infos):
+    def _instances(scene_dir, key, gts, infos, names):
         if len(gts) != len(infos):
             raise InputError(f'{scene_dir}: image {key} has {len(gts)} poses in scene_gt.json '
                              f'but {len(infos)} entries in scene_gt_info.json')
@@ -226,7 +237,7 @@ class BopDataset:
             where = f'image {key} instance {index}'
             obj_id = int(_field(gt, 'obj_id', scene_dir / 'scene_gt.json', where))
             instances.append(GroundTruthInstance(
-                object_name=LINEMOD_OBJECTS.get(obj_id, f'obj_{obj_id:06d}'),
+                object_name=names.get(obj_id) or fallback_object_name(obj_id),
                 obj_id=obj_id,
                 rotation=nearest_rotation(_field(gt, 'cam_R_m2c', scene_dir / 'scene_gt.json',
                                                  where, (3, 3))),
