@@ -28,8 +28,8 @@ import sys
 from bbpose_ros import __version__
 from bbpose_ros.core.errors import InputError
 
-SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'train', 'play', 'replay_eval', 'bench', 'docs',
-               'compare', 'pose_spread')
+SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'check_mesh', 'train', 'play', 'replay_eval',
+               'bench', 'docs', 'compare', 'pose_spread')
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,85 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose check-mesh``: check a new object's mesh; optionally write it as a BOP model.
+
+Problems (units, size, colours) are one error line naming the file and exit code 2; notes
+(decimation, open edges) are printed. With ``--out`` the checked mesh becomes a BOP
+``models/`` folder of one object (see ``bbpose_ros.core.data.mesh_check``).
+"""
+
+import argparse
+from pathlib import Path
+
+from bbpose_ros.core.data.mesh_check import check_mesh, MAX_FACES, UNITS, write_bop_model
+from bbpose_ros.core.errors import InputError
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the ``check-mesh`` subcommand on an argparse subparsers object; return it."""
+    parser = subparsers.add_parser(
+        'check-mesh', help="check a new object's mesh (units, size, colours, holes, faces)",
+        description="Check a new object's mesh: units against its size, a tabletop size, "
+                    'vertex colours (or a uniform --color), watertightness and face count '
+                    '(a huge mesh is decimated). With --out, write it as a BOP models/ '
+                    'folder: the PLY in mm with colours, its models_info.json entry '
+                    '(diameter and box) and the names table models_names.json.')
+    parser.add_argument('--mesh', required=True, type=Path,
+                        help='mesh file (PLY, OBJ, STL, GLB; a texture becomes vertex colours)')
+    parser.add_argument('--units', choices=tuple(UNITS), default='mm',
+                        help="the file's length unit (default %(default)s, as BOP's)")
+    parser.add_argument('--color', type=rgb, default=None, metavar='R,G,B',
+                        help='paint the whole mesh this colour, 0-255 each (needed when it has '
+                             'no colours)')
+    parser.add_argument('--max-faces', type=int, default=MAX_FACES,
+                        help='decimate meshes with more faces (default %(default)s)')
+    parser.add_argument('--out', type=Path, default=None,
+                        help='write a BOP models/ folder of the object here (must not exist)')
+    parser.add_argument('--obj-id', type=int, default=1,
+                        help='with --out: its BOP object id (default %(default)s)')
+    parser.add_argument('--name', default=None,
+                        help="with --out: the object's name, e.g. toy (default: the file's "
+                             'stem)')
+    parser.set_defaults(func=run)
+    return parser
+
+
+def rgb(text: str) -> tuple[int, int, int]:
+    """Parse 'R,G,B' (0-255 each) into a tuple (an argparse type)."""
+    try:
+        values = tuple(int(part) for part in text.split(','))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(0 <= value <= 255 for value in values):
+        raise argparse.ArgumentTypeError(f'expected R,G,B integers 0-255, got {text!r}')
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``bbpose check-mesh``; returns the exit status, a refused mesh raises InputError."""
+    if args.out is None and (args.name is not None or args.obj_id != 1):
+        raise InputError('--name and --obj-id name the object written by --out')
+    checked = check_mesh(args.mesh, args.units, args.color, args.max_faces)
+    extent = checked.vertices.max(axis=0) - checked.vertices.min(axis=0)
+    print(f'{checked.path}: {len(checked.vertices)} vertices, {len(checked.faces)} faces, '
+          f'diameter {checked.diameter_m:.4f} m, box {" x ".join(f"{x:.4f}" for x in extent)} '
+          f'm, {"watertight" if not checked.open_edges else "open"}')
+    for note in checked.notes:
+        print(f'note: {note}')
+    if args.out is not None:
+        write_bop_model(checked, args.out, args.obj_id, args.name or Path(args.mesh).stem)
+        print(f'wrote {args.out}: obj_{args.obj_id:06d}.ply (mm), models_info.json, '
+              'models_names.json (add symmetries_discrete by hand for a symmetric object)')
+    return 0
