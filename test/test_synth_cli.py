@@ -15,11 +15,13 @@
 """``bbpose synth``: BOP output readable by our reader, atomic writes, clear input errors."""
 
 import argparse
+import json
 
 import numpy as np
 import pytest
 
 from bbpose_ros.cli import synth
+from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth import SyntheticScenes
@@ -64,6 +66,26 @@ def test_writes_a_bop_dataset(egl, tmp_path, lmo_root):
             assert np.all(instance.box_uv[2:] > instance.box_uv[:2])
     mask_files = list((out / 'train_synth' / '000000' / 'mask_visib').iterdir())
     assert len(mask_files) == sum(len(frame.instances) for frame in frames)
+
+
+def test_table_scenes_make_a_dataset_that_eval_scores(egl, tmp_path, lmo_root, capsys):
+    out = tmp_path / 'table'
+    args = parse('--dataset', str(lmo_root), '--out', str(out), '--count', '2',
+                 '--scene-style', 'table', '--objects', 'duck')
+    assert args.func(args) == 0
+    assert 'wrote 2 table images of duck' in capsys.readouterr().out
+    assert json.loads((out / 'synth_info.json').read_text())['scene_style'] == 'table'
+    assert sorted(p.name for p in (out / 'models').iterdir()) == sorted(
+        p.name for p in (lmo_root / 'models').iterdir())
+    frames = BopDataset(out, split='train_synth').frames()
+    assert {i.object_name for f in frames for i in f.instances} == {'duck'}
+    report = tmp_path / 'report.json'
+    assert main(['eval', '--dataset', str(out), '--split', 'train_synth', '--objects', 'duck',
+                 '--boxes', 'gt', '--rotation', 'gt', '--no-refine', '--json',
+                 str(report)]) == 0
+    scored = json.loads(report.read_text())
+    assert scored['config']['split'] == 'train_synth'
+    assert scored['objects']['duck']['add_s_recall'] > 0.5
 
 
 @pytest.mark.parametrize('argv, message', [

@@ -29,7 +29,7 @@ from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import symmetric_dot_product_loss
 from bbpose_ros.core.synth.placement import viewpoint_angles, viewpoint_rotation
-from bbpose_ros.core.training.cache import TrainingCache
+from bbpose_ros.core.training.cache import TrainingCache, whole_shards
 from bbpose_ros.core.training.detector_training import DetectorBatches, DetectorTrainSettings
 from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
@@ -312,6 +312,12 @@ def test_render_crops_cli_counts_scenes_only_for_table_crops(tmp_path, lmo_root,
     assert main(common + ['--scenes', '10']) == 2
     assert '--scenes is for --scene-style table' in capsys.readouterr().err
     assert not (tmp_path / 'crops').exists()
+
+
+def test_a_render_says_when_it_rounds_up_to_whole_shards(capsys):
+    assert whole_shards(500, 250) == 500 and capsys.readouterr().out == ''
+    assert whole_shards(50, 250, 'crop') == 250
+    assert capsys.readouterr().out == 'rendering 250 crops, not 50: whole shards of 250\n'
 
 
 def test_train_detector_cli_joins_scene_caches_only(tmp_path, lmo_root, capsys):

@@ -23,6 +23,7 @@ from typing import TypeVar
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
 
 Config = TypeVar('Config')
+SCENE_STYLES = ('random', 'table')
 
 
 def add_dataset_argument(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +37,15 @@ def add_objects_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--objects a,b,c`` (default: every object of the dataset)."""
     parser.add_argument('--objects', type=lambda text: [n for n in text.split(',') if n],
                         default=None, help='comma-separated object names (default: all)')
+
+
+def add_scene_style_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--scene-style random|table``: the kind of synthetic scenes rendered."""
+    parser.add_argument('--scene-style', choices=SCENE_STYLES, default='random',
+                        help="'random': objects floating at random poses over a background "
+                             "among distractors; 'table': objects resting on a textured "
+                             'table among clutter, lit with shadows and highlights, seen '
+                             'from above like LM-O (default %(default)s)')
 
 
 def add_inplane_argument(parser: argparse.ArgumentParser) -> None:

@@ -40,6 +40,9 @@ def add_parser(subparsers):
                     'truth, to isolate the Bounding Box Equation. With --boxes detector the '
                     'report also scores the detector (recall and AP at IoU 0.5).')
     add_dataset_argument(parser)
+    parser.add_argument('--split', default='test',
+                        help="the dataset's split folder to score, e.g. train_synth (what "
+                             "bbpose synth writes) or your own frames' (default %(default)s)")
     parser.add_argument('--boxes', choices=('gt', 'detector'), default='detector',
                         help='2D boxes from the ground truth (amodal bbox_obj) or the detector')
     parser.add_argument('--rotation', choices=('gt', 'qnet'), default='qnet',
@@ -114,7 +117,7 @@ def _weights_name(path):
 
 def run(args):
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
-    dataset = BopDataset(args.dataset)
+    dataset = BopDataset(args.dataset, args.split)
     models = dataset.load_models(args.objects)
     frames = dataset.frames()[:args.max_frames]
     levels = args.perturb_gt or [None]
@@ -143,7 +146,8 @@ def run(args):
         pipeline.detector = recorder.detector
         detection = score_detections(frames, recorder.calls, list(models), args.min_visib)
         report['detection'] = {**detection['detection'], 'mean': detection['mean']}
-    report['config'] = {'dataset': str(args.dataset), 'boxes': args.boxes,
+    report['config'] = {'dataset': str(args.dataset), 'split': args.split,
+                        'boxes': args.boxes,
                         'rotation': args.rotation, 'min_visib': args.min_visib,
                         'detector_weights': _weights_name(args.detector_weights),
                         'qnet_weights': _weights_name(args.qnet_weights),

@@ -16,26 +16,31 @@
 ``bbpose synth``: render synthetic training images of a dataset's objects, BOP format.
 
 Output (see ``bbpose_ros.core.synth.export``): ``camera.json``, ``train_synth/000000/``
-with images, visible masks and ground truth, ``previews/`` with boxes drawn, and
-``synth_info.json`` (seed, objects, settings). The folder appears only when complete: it is
-written under a temporary name next to it and renamed at the end.
+with images, visible masks and ground truth, ``models/`` (a copy of the dataset's: meshes,
+models_info.json, the names table), ``previews/`` with boxes drawn, and ``synth_info.json``
+(seed, objects, settings): a BOP dataset of its own, which ``bbpose eval --split
+train_synth`` scores. The folder appears only when complete: it is written under a
+temporary name next to it and renamed at the end.
 """
 
 import argparse
 from dataclasses import asdict
 from pathlib import Path
+import shutil
 
 from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_dataset_argument, add_inplane_argument, \
-    with_inplane_range
+    add_scene_style_argument, with_inplane_range
 from bbpose_ros.core.data.bop import load_camera
-from bbpose_ros.core.data.models import load_bop_models, resolve_object_names
+from bbpose_ros.core.data.models import load_bop_models, names_source, resolve_object_names
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
 from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
     write_rgb_png
+from bbpose_ros.core.synth.table_config import TableConfig
+from bbpose_ros.core.synth.table_scenes import TableScenes
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -43,8 +48,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser = subparsers.add_parser(
         'synth', help='render synthetic training images with ground truth (BOP format)',
         description="Render synthetic scenes of a BOP dataset's object meshes (random "
-                    'poses, distractors, backgrounds and camera effects) with their exact '
-                    'ground truth.')
+                    'poses, distractors, backgrounds and camera effects, or table-top scenes '
+                    'as the shipped networks train on) with their exact ground truth.')
     add_dataset_argument(parser)
     parser.add_argument('--out', required=True, type=Path,
                         help='output folder (must not exist yet)')
@@ -54,6 +59,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument('--objects', default='',
                         help='comma-separated target objects, e.g. ape,can (default all); '
                              "the dataset's other objects appear as unlabelled distractors")
+    add_scene_style_argument(parser)
     add_inplane_argument(parser)
     parser.add_argument('--previews', type=int, default=8,
                         help='number of preview images with boxes drawn (default 8)')
@@ -77,18 +83,25 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.dataset)
     models = load_bop_models(args.dataset)
     requested = [name.strip() for name in args.objects.split(',') if name.strip()]
-    targets = resolve_object_names(requested, models)
+    targets = resolve_object_names(requested, models, names_source(args.dataset))
     distractors = {name: model for name, model in models.items() if name not in targets}
-    config = with_inplane_range(SynthConfig(), args)
-    scenes = SyntheticScenes({name: models[name] for name in targets}, camera, args.seed,
-                             config, distractors)
+    target_models = {name: models[name] for name in targets}
+    if args.scene_style == 'table':
+        config = with_inplane_range(TableConfig(), args)
+        scenes = TableScenes(target_models, camera, args.seed, config, distractors)
+    else:
+        config = with_inplane_range(SynthConfig(), args)
+        scenes = SyntheticScenes(target_models, camera, args.seed, config, distractors)
     try:
         with atomic_output(out) as staging:
             staging.mkdir()
+            shutil.copytree(Path(args.dataset) / 'models', staging / 'models')
             _write(scenes, models, staging, args, targets, distractors, config)
     finally:
         scenes.close()
-    print(f'wrote {args.count} images of {", ".join(targets)} to {out}')
+    print(f'wrote {args.count} {args.scene_style} images of {", ".join(targets)} to {out} '
+          f'(boxes drawn on the first {min(args.previews, args.count)} in {out / "previews"}; '
+          f'bbpose eval --dataset {out} --split train_synth scores them)')
     return 0
 
 
@@ -104,5 +117,6 @@ def _write(scenes, models, root, args, targets, distractors, config):
             write_rgb_png(root / 'previews' / f'{index:06d}.png', draw_preview(sample))
     writer.finish()
     write_json(root / 'synth_info.json', {
-        'seed': args.seed, 'count': args.count, 'objects': targets,
+        'seed': args.seed, 'count': args.count, 'scene_style': args.scene_style,
+        'objects': targets,
         'distractor_objects': sorted(distractors), 'config': asdict(config)})

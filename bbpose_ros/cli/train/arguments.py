@@ -29,7 +29,6 @@ from bbpose_ros.core.training.augment import AUGMENT_STYLES
 from bbpose_ros.core.training.device import DEVICES
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
-SCENE_STYLES = ('random', 'table')
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
 Settings = TypeVar('Settings')

@@ -16,11 +16,12 @@
 
 import argparse
 
-from bbpose_ros.cli.common import add_inplane_argument, with_inplane_range
+from bbpose_ros.cli.common import add_inplane_argument, add_scene_style_argument, \
+    with_inplane_range
 from bbpose_ros.cli.train.arguments import (add_backgrounds_option, add_common_options,
                                             add_input_size_option, add_table_options,
                                             check_input_size, refuse_table_options,
-                                            SCENE_STYLES, table_config)
+                                            table_config)
 from bbpose_ros.cli.train.inputs import cache_camera, other_models, photos
 
 
@@ -28,13 +29,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``bbpose train render``."""
     render = subparsers.add_parser('render', help='render a training cache')
     add_common_options(render)
-    render.add_argument('--scenes', type=int, default=6000, help='scenes to render')
+    render.add_argument('--scenes', type=int, default=6000,
+                        help='scenes to render, rounded up to whole shards of the cache '
+                             '(default %(default)s)')
     render.add_argument('--workers', type=int, default=2, help='rendering processes')
-    render.add_argument('--scene-style', choices=SCENE_STYLES, default='random',
-                        help="'random': objects floating at random poses over a background "
-                             "among distractors; 'table': objects resting on a textured "
-                             'table among clutter, lit with shadows and highlights, seen '
-                             'from above like LM-O (default %(default)s)')
+    add_scene_style_argument(render)
     add_input_size_option(render)
     add_backgrounds_option(render)
     add_inplane_argument(render)

@@ -16,11 +16,10 @@
 
 import argparse
 
-from bbpose_ros.cli.common import add_inplane_argument, with_inplane_range
+from bbpose_ros.cli.common import add_inplane_argument, SCENE_STYLES, with_inplane_range
 from bbpose_ros.cli.train.arguments import (add_backgrounds_option, add_common_options,
                                             add_crop_options, add_table_options,
-                                            refuse_table_options, SCENE_STYLES,
-                                            table_config)
+                                            refuse_table_options, table_config)
 from bbpose_ros.cli.train.inputs import cache_camera, other_models, photos
 from bbpose_ros.core.errors import InputError
 

@@ -151,9 +151,16 @@ def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, co
                   progress)
 
 
-def whole_shards(count: int, shard_size: int) -> int:
-    """Round ``count`` up to whole shards: a render cache grows, and resumes, by shards."""
-    return -(-count // shard_size) * shard_size
+def whole_shards(count: int, shard_size: int, unit: str = 'scene') -> int:
+    """
+    Round ``count`` up to whole shards: a render cache grows, and resumes, by shards.
+
+    When it rounds, it says so on stdout (``unit``: what is counted, e.g. 'scene').
+    """
+    rounded = -(-count // shard_size) * shard_size
+    if rounded != count:
+        print(f'rendering {rounded} {unit}s, not {count}: whole shards of {shard_size}')
+    return rounded
 
 
 def render_shards(cache_dir: Path, meta: Mapping[str, Any], count: int, shard_size: int,

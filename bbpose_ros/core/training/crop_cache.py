@@ -127,9 +127,10 @@ def build_crop_cache(scenes: CropScenes | TableCrops, cache_dir: Path | str, cou
         meta['scene_style'] = 'table'
     if scenes.dense_size:
         meta.update(format_version=DENSE_FORMAT_VERSION, dense_size=scenes.dense_size)
-    render_shards(cache_dir, meta, whole_shards(count, shard_size), shard_size, _init_worker,
-                  (scenes,), _render, partial(_write_crops, scenes.target_names),
-                  'scene' if table else 'crop', workers, progress)
+    unit = 'scene' if table else 'crop'
+    render_shards(cache_dir, meta, whole_shards(count, shard_size, unit), shard_size,
+                  _init_worker, (scenes,), _render, partial(_write_crops, scenes.target_names),
+                  unit, workers, progress)
 
 
 def _read_meta(cache_dir):
