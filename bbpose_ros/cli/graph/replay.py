@@ -286,14 +286,33 @@ def typestore_of(msgtypes: Iterable[str]) -> Typestore:
     Return rosbags' Jazzy typestore, plus the packages of ``msgtypes`` that it lacks.
 
     rosbags knows no vision_msgs: each missing package's message definitions are read from
-    its installed share/<package>/msg/*.msg (the venv's, or a full ROS install's).
+    its installed share/<package>/msg/*.msg (``share_directory``).
     """
     typestore = get_typestore(Stores.ROS2_JAZZY)
     missing = {name.split('/')[0] for name in msgtypes if name not in typestore.types}
     definitions = {}
     for package in sorted(missing):
-        for path in sorted((Path(get_package_share_directory(package)) / 'msg').glob('*.msg')):
+        for path in sorted((share_directory(package) / 'msg').glob('*.msg')):
             definitions.update(get_types_from_msg(path.read_text(),
                                                   f'{package}/msg/{path.stem}'))
     typestore.register(definitions)
     return typestore
+
+
+def share_directory(package: str) -> Path:
+    """
+    Return an installed package's share/<package> folder.
+
+    It is found in the ament index of $AMENT_PREFIX_PATH (a sourced ROS install, or the
+    Makefile's venv), else, without that variable, in the prefix this Python runs from
+    (``sys.prefix``: the venv's own install), so no tool needs the Makefile's environment.
+    """
+    try:
+        return Path(get_package_share_directory(package))
+    except OSError:    # AMENT_PREFIX_PATH is not set or empty
+        prefix = Path(sys.prefix)
+        if (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' /
+                package).is_file():
+            return prefix / 'share' / package
+        raise InputError(f'ROS package {package} not found: AMENT_PREFIX_PATH is not set '
+                         f'and {prefix} has no share/{package} (source a ROS install)') from None
