@@ -51,12 +51,14 @@ def add_parser(subparsers):
         'bench', help='time the pipeline stages, or the node through the ROS graph',
         description='Without --graph: run the pipeline on BOP frames after a warm-up and '
                     'report per stage (image conversion, detector, crop + Q-Net, Bounding Box '
-                    'Equation, message building) and in total the median, p95 and max in ms, '
-                    "fps, peak RSS and torch threads; once with the detector's detections and "
+                    'Equation, refinement, message building) and in total the median, p95 and '
+                    'max in ms, fps, peak RSS, the inference threads and the networks run; '
+                    "once with the detector's detections and "
                     'once ("all_objects") with the ground-truth box of every object of the '
-                    'frame. With --graph: start bbpose_node, publish the frames at --rate for '
-                    '--duration seconds over DDS (shipped Fast DDS profile) and report the '
-                    'publish -> answer latency, frames answered / dropped, node CPU and RSS.')
+                    'frame. With --graph: start '
+                    'bbpose_node, publish the frames at --rate for --duration seconds over DDS '
+                    '(shipped Fast DDS profile) and report the publish -> answer latency, '
+                    'frames answered / dropped, node CPU and RSS.')
     add_dataset_argument(parser)
     add_objects_argument(parser)
     parser.add_argument('--frames', type=int, default=None,
