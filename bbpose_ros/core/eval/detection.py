@@ -22,8 +22,8 @@ detection that only matches a less visible instance is ignored (neither hit nor 
 Recall is also given over the instances with visible fraction >= 0.3, and how far the
 matched boxes are off (``box_errors``): the Bounding Box Equation's depth scales with the
 box, so a box's relative size error is its pose's relative depth error. AP is computed over
-the detections the detector reports, so its score threshold (0.3 in ``load_pipeline``) cuts
-the precision-recall curve short.
+the detections the detector reports, so its score threshold (the setting
+``score_threshold``) cuts the precision-recall curve short.
 """
 
 from __future__ import annotations

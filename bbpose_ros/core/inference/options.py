@@ -18,10 +18,12 @@
 Each field is one setting, under one name from the node's parameters file to the stage
 that reads it: its type, default (the shipped value), range or choices and a one-line
 description live here and nowhere else. The node's parameter descriptors
-(``ros/params.py``), the ``bbpose eval`` / ``bbpose bench`` options (``cli/common.py``)
-are generated from ``SETTINGS``, and a test holds config/bbpose.yaml's values equal to
-these defaults. A PipelineOptions checks itself when it is made (``check_option`` for
-each field, then the combinations), so a value is checked once, wherever it comes from.
+(``ros/params.py``) and the ``bbpose eval`` / ``bbpose bench`` options
+(``cli/pipeline_arguments.py``) are generated from ``SETTINGS``, and a test holds
+config/bbpose.yaml's values equal to these defaults (the node's own default
+``inference_threads`` aside: ``ros/params.py`` NODE_DEFAULTS). A PipelineOptions checks
+itself when it is made (``check_option`` for each field, then the combinations), so a value
+is checked once, wherever it comes from.
 
 A leaf module: it imports nothing but the errors, so the parameter table and the
 command-line parsers load without torch or numba.

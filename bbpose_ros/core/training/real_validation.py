@@ -100,7 +100,7 @@ class RealCrops:
 
 class RealDetections:
     """
-    Real frames for the detector, scored as by ``load_pipeline`` (score 0.3, one a name; torch).
+    Real frames for the detector, scored with BoxDetector's defaults (score 0.3, one a name).
 
     Args:
         frames: BopFrame sequence.
