@@ -170,8 +170,9 @@ PARAMETERS = {
         '', 'Q-Net rotation weights file (.pt); empty: the weights shipped in '
         'bbpose_ros/weights.', 'configure', check=_check_weights_file),
     'dense_weights': ParameterSpec(
-        '', 'Dense correspondence net weights file (.pt), read when pose_source, dense_mask or '
-        'box_source uses it; empty: bbpose_ros/weights/dense.pt.', 'configure',
+        '', 'Dense correspondence net weights file (.pt), read when pose_source, dense_mask, '
+        'box_source or mask_consistency_weight uses it; empty: bbpose_ros/weights/dense.pt.',
+        'configure',
         check=_check_weights_file),
     **{name: setting_spec(setting) for name, setting in SETTINGS.items()},
     'qos_reliability': ParameterSpec(
