@@ -21,7 +21,7 @@ left out), and of that instance's symmetric equivalents the one nearest in rotat
 object, a spread is 1.4826 x the median absolute error along each camera axis (the standard
 deviation a normal error would have, robust to the few flips a symmetric-looking view
 causes); the node scales it by ``confidence_median / confidence``
-(``ros.detections.PoseSpread``).
+(``ros.detections.ObjectSpread``).
 """
 
 from __future__ import annotations

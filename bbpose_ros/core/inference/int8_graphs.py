@@ -30,7 +30,7 @@ weights is refused. What it computes, by network kind (``INPUT_NAMES`` -> ``OUTP
   the node's settings, is added in float at load (``with_peak_search``).
 * 'qnet': (N, S, S, 3) uint8 crops and their (N,) int64 object indices -> every
   hypothesis, (N, K, 4) unnormalised wxyz quaternions and (N, K) logits
-  (``rotation_estimator.hypothesis_network``); any batch size.
+  (``rotation_estimator.run_network`` with all hypotheses); any batch size.
 """
 
 import hashlib
