@@ -22,8 +22,13 @@ overrides of the parameters of the same names, so the stage benchmark builds the
 pipeline the node would, and ``--graph`` starts the node with them.
 """
 
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
 import os
 from pathlib import Path
+from typing import Any
 
 from std_msgs.msg import Header
 
@@ -32,7 +37,7 @@ from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
-from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
@@ -45,7 +50,7 @@ from bbpose_ros.ros.node_pipeline import build_node_pipeline
 from bbpose_ros.ros.params import read_config, read_params_file
 
 
-def add_parser(subparsers):
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``bench`` subcommand."""
     parser = subparsers.add_parser(
         'bench', help='time the pipeline stages, or the node through the ROS graph',
@@ -83,7 +88,7 @@ def add_parser(subparsers):
     parser.set_defaults(func=run)
 
 
-def node_overrides(args):
+def node_overrides(args: argparse.Namespace) -> list[str]:
     """Make the ``name:=value`` parameter overrides of the options, then ``--param``."""
     overrides = [f'dataset_dir:={args.dataset.resolve()}']
     if args.objects:
@@ -93,7 +98,8 @@ def node_overrides(args):
     return overrides + list(args.param)
 
 
-def bench_frames(frames, values, warmup):
+def bench_frames(frames: Sequence[BopFrame], values: dict[str, Any],
+                 warmup: int) -> dict[str, Any]:
     """Time the stages on ``frames`` with the pipeline the node builds from ``values``."""
     config = read_config(values)
     built = build_node_pipeline(config)
@@ -115,7 +121,8 @@ def bench_frames(frames, values, warmup):
     return report
 
 
-def bench_graph(args, frames, values, overrides):
+def bench_graph(args: argparse.Namespace, frames: Sequence[BopFrame],
+                values: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
     """Publish ``frames`` at ``args.rate`` into a node started with ``overrides``."""
     if args.rate <= 0 or args.duration <= 0:
         raise InputError('--rate and --duration must be positive')
@@ -131,7 +138,7 @@ def bench_graph(args, frames, values, overrides):
     return report
 
 
-def format_frames(report):
+def format_frames(report: Mapping[str, Any]) -> str:
     """Make the stage table of a stage benchmark report."""
     modes = [report, report['all_objects']]
     if 'tracking' in report:
@@ -153,7 +160,7 @@ def format_frames(report):
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 
-def format_graph(report):
+def format_graph(report: Mapping[str, Any]) -> str:
     """Make the summary lines of a graph benchmark report."""
     frames, node = report['frames'], report['node']
     lines = [f'{"latency (ms)":26s}{"median":>9s}{"p95":>9s}{"max":>9s}',
@@ -178,7 +185,7 @@ def format_graph(report):
     return '\n'.join(lines + _format_budgets(report['budgets']))
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Run the chosen benchmark, print its summary and write the JSON; returns 0."""
     overrides = node_overrides(args)
     values = read_params_file(args.params, overrides)

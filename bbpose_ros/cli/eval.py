@@ -14,8 +14,13 @@
 
 """``bbpose eval``: score the pipeline on a BOP dataset folder and write the report JSON."""
 
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
 import dataclasses
 from pathlib import Path
+from typing import Any, TYPE_CHECKING
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
                                    add_objects_argument, float_pair)
@@ -23,14 +28,20 @@ from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
-from bbpose_ros.core.eval.evaluation import format_report, make_report, score_frames
+from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
+from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.paired import instances_path
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
 
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+    from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+    from bbpose_ros.core.pipeline.tracking import PoseTracker
 
-def add_parser(subparsers):
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``eval`` subcommand."""
     parser = subparsers.add_parser(
         'eval', help='evaluate the pipeline on BOP frames (table + JSON)',
@@ -82,7 +93,8 @@ def add_parser(subparsers):
 EVAL_SETTINGS = tuple(name for name in SETTINGS if not name.startswith('tracking'))
 
 
-def build_pipeline(models, args):
+def build_pipeline(models: Mapping[str, ObjectModel],
+                   args: argparse.Namespace) -> PosePipeline | PoseTracker:
     """Build the pipeline of the options; the stages the ground truth replaces are not loaded."""
     options = options_of(args, EVAL_SETTINGS)
     return load_pipeline(models, options,
@@ -115,7 +127,7 @@ def _weights_name(path):
     return 'shipped' if path is None else str(path)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset, args.split)
     models = dataset.load_models(args.objects)
@@ -180,7 +192,10 @@ def run(args):
     return 0
 
 
-def write_plots(folder, scores, per_object, sweep=None, confidence=None):
+def write_plots(folder: Path, scores: Mapping[str, Sequence[InstanceScore]],
+                per_object: Mapping[str, Mapping[str, Any]],
+                sweep: Sequence[Mapping[str, Any]] | None = None,
+                confidence: Sequence[Mapping[str, float]] | None = None) -> None:
     """Write the evaluation charts into ``folder`` (matplotlib is imported only here)."""
     from bbpose_ros.core.eval import plots
     plots.recall_curves(scores, folder / 'recall_curves.png')
