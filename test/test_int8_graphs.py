@@ -112,8 +112,8 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
 def test_int8_finds_what_fp32_finds_on_real_frames(network, lmo_frames):
     names = network.config.objects
     graph = read_int8_graph(SHIPPED_INT8, DEFAULT_DETECTOR_WEIGHTS, 'detector')
-    fp32 = BoxDetector(network, names, score_threshold=0.3, threads=1)
-    int8 = BoxDetector(network, names, score_threshold=0.3, threads=1, int8_graph=graph)
+    fp32 = BoxDetector(network, names, 0.3, 1, threads=1)
+    int8 = BoxDetector(network, names, 0.3, 1, threads=1, int8_graph=graph)
     assert (fp32.precision, int8.precision) == ('fp32', 'int8')
     matched, total = 0, 0
     for frame in lmo_frames[:FRAMES]:

@@ -45,8 +45,9 @@ class BoxDetector:
     Args:
         network: a CenterBoxNet (a copy is prepared for inference by ``make_runner``).
         names: object names to report (a subset of the network's classes).
-        score_threshold: lowest detection score reported.
-        max_instances: most detections per object name.
+        score_threshold: lowest detection score reported, 0..1
+            (``PipelineOptions.score_threshold``).
+        max_instances: most detections per object name (``PipelineOptions.max_instances``).
         backend, device, threads: see ``backends.make_runner``.
         int8_graph: the network's int8 graph (``int8_graphs.read_int8_graph``, checked
             against the network's weight file by the caller), run by ONNX Runtime in place of
@@ -58,7 +59,7 @@ class BoxDetector:
     """
 
     def __init__(self, network: CenterBoxNet, names: Collection[str],
-                 score_threshold: float = 0.3, max_instances: int = 1,
+                 score_threshold: float, max_instances: int,
                  backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
                  threads: int | None = None, int8_graph=None) -> None:
         self.config = network.config

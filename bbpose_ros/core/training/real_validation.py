@@ -36,6 +36,7 @@ from bbpose_ros.core.eval.evaluation import score_instance, summarize_objects
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.inference.backends import TorchRunner
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet
@@ -100,7 +101,9 @@ class RealCrops:
 
 class RealDetections:
     """
-    Real frames for the detector, scored with BoxDetector's defaults (score 0.3, one a name).
+    Real frames for the detector, scored with the shipped score threshold and instances.
+
+    The threshold and the instances per name are ``PipelineOptions``' defaults.
 
     Args:
         frames: BopFrame sequence.
@@ -115,7 +118,9 @@ class RealDetections:
 
     def figures(self, network: CenterBoxNet) -> dict[str, float]:
         """Mean recall at IoU 0.5 (visible fraction >= 0.3) and AP50 of a CenterBoxNet."""
-        detector = BoxDetector(network, self.objects, backend='torch')
+        shipped = PipelineOptions()
+        detector = BoxDetector(network, self.objects, shipped.score_threshold,
+                               shipped.max_instances, backend='torch')
         report = score_detections(self.frames, [detector(image) for image in self.images],
                                   self.objects)
         return {'real_recall50_visib30': report['mean']['recall_iou50_visib30'],
