@@ -221,7 +221,10 @@ def _late_camera_info(client, image, info):
     """
     Publish the image, the next one 0.2 s later, then each CameraInfo 0.25 s after its image.
 
-    Each CameraInfo comes after the next image (5 Hz, 0.25 s late): both images wait.
+    Each CameraInfo comes after the next image (5 Hz, 0.25 s late): both images wait, and
+    both are answered (the following one waited for here, before the next good frame: the
+    node's keep-last-1 camera_info subscription would otherwise let that frame's CameraInfo
+    replace this one's unread on a busy machine).
     """
     following = deserialize_message(serialize_message(image), Image)
     following_info = deserialize_message(serialize_message(info), CameraInfo)
@@ -233,6 +236,7 @@ def _late_camera_info(client, image, info):
                                        (following_info, client.info, 0.0)):
         publisher.publish(message)
         client.spin_until(lambda: False, timeout_s=wait_s)
+    assert answer(client, stamp_to_ns(following.header.stamp)) is not None
 
 
 def _no_camera_info(client, image, info):
