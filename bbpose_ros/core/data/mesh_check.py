@@ -39,7 +39,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from bbpose_ros.core.data.models import check_names, MM_TO_M, NAMES_FILE, read_mesh_file
+from bbpose_ros.core.data.models import (check_names, convex_hull_points, MM_TO_M, NAMES_FILE,
+                                         read_mesh_file)
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output, write_json_atomic
 
@@ -174,7 +175,7 @@ def _vertex_colors(mesh):
 def max_distance(points: np.ndarray) -> float:
     """Return the largest distance between two of (N, 3) points (over their convex hull)."""
     try:
-        hull = np.asarray(trimesh.convex.convex_hull(points).vertices)
+        hull = convex_hull_points(points)
     except Exception:  # flat or degenerate point sets have no 3D hull: use them all
         hull = np.unique(points, axis=0)
     best = 0.0

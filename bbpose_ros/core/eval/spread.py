@@ -29,10 +29,10 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from bbpose_ros.core.eval.metrics import symmetric_ground_truths
+from bbpose_ros.core.geometry.rotations import log_so3
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import GroundTruthInstance
@@ -40,12 +40,6 @@ if TYPE_CHECKING:
     from bbpose_ros.core.pipeline.poses import PoseEstimate
 
 MAD_TO_SIGMA = 1.4826
-
-
-def rotation_vector(rotation: np.ndarray) -> np.ndarray:
-    """(3,) axis x angle (radians) of a (3, 3) rotation."""
-    vector, _ = cv2.Rodrigues(np.asarray(rotation, dtype=np.float64))
-    return vector.reshape(3)
 
 
 def pose_errors(pose: PoseEstimate, truths: Sequence[GroundTruthInstance],
@@ -65,8 +59,8 @@ def pose_errors(pose: PoseEstimate, truths: Sequence[GroundTruthInstance],
         return None
     rotations, translations = symmetric_ground_truths(truth.rotation, truth.translation,
                                                       model.symmetry_transforms)
-    vectors = [rotation_vector(pose.rotation @ r.T) for r in rotations]
-    best = int(np.argmin([np.linalg.norm(v) for v in vectors]))
+    vectors = log_so3(pose.rotation @ np.transpose(rotations, (0, 2, 1)))
+    best = int(np.argmin(np.linalg.norm(vectors, axis=1)))
     return pose.translation - translations[best], vectors[best]
 
 

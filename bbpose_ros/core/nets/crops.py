@@ -41,6 +41,21 @@ def square_boxes(boxes_uv: npt.ArrayLike, context: float) -> np.ndarray:
     return squares
 
 
+def crop_pixels(u0: float, v0: float, u1: float, size: int) -> tuple[int, int, int, int]:
+    """
+    Return (x0, y0, side, factor): the pixels ``extract_crops`` cuts for a square.
+
+    The square [u0, v0, u1, v0 + u1 - u0] (continuous pixels) becomes the whole-pixel region
+    of columns x0 .. x0 + side - 1 and rows y0 .. y0 + side - 1, ``side`` a multiple of the
+    integer area-averaging ``factor`` (1: none) that brings it to below twice ``size``.
+    """
+    factor = max(1, int((u1 - u0) // size))
+    side = max(1, round((u1 - u0) / factor)) * factor
+    x0 = math.floor((u0 + u1 - side) / 2.0 + 0.5)
+    y0 = math.floor(v0 + (u1 - u0 - side) / 2.0 + 0.5)
+    return x0, y0, side, factor
+
+
 def extract_crops(image: np.ndarray, squares: npt.ArrayLike, size: int) -> np.ndarray:
     """
     Cut (N, 4) square regions out of an (H, W, 3) uint8 image, each resized to size x size.
@@ -57,10 +72,7 @@ def extract_crops(image: np.ndarray, squares: npt.ArrayLike, size: int) -> np.nd
     # Python floats, not numpy scalars, for the per-crop arithmetic (numpy scalar
     # operations carry a per-call overhead that dominates such small computations).
     for k, (u0, v0, u1, _) in enumerate(squares.tolist()):
-        factor = max(1, int((u1 - u0) // size))
-        side = max(1, round((u1 - u0) / factor)) * factor
-        x0 = math.floor((u0 + u1 - side) / 2.0 + 0.5)
-        y0 = math.floor(v0 + (u1 - u0 - side) / 2.0 + 0.5)
+        x0, y0, side, factor = crop_pixels(u0, v0, u1, size)
         x1, y1 = x0 + side, y0 + side
         region = image[max(y0, 0):min(y1, height), max(x0, 0):min(x1, width)]
         if region.shape[0] != side or region.shape[1] != side:

@@ -44,6 +44,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from bbpose_ros.core.nets.crops import crop_pixels
 from bbpose_ros.core.pipeline.poses import Detection
 
 # The mask's share at a silhouette edge.
@@ -57,15 +58,12 @@ def crop_region(square_uv: npt.ArrayLike, size: int) -> np.ndarray:
     """
     Return the pixel region (4,) ``nets.crops.extract_crops`` cuts for a square.
 
-    ``extract_crops`` rounds a square's side to a multiple of its area-averaging factor and
-    its corner to whole pixels; the crop's cells lie over that region, [u_min, v_min, u_max,
+    ``extract_crops`` cuts the whole pixels of ``crops.crop_pixels``; the crop's cells lie
+    over that region, [u_min, v_min, u_max,
     v_max] in continuous pixels (edges on half-integers), not over the square asked for.
     """
     u0, v0, u1, _ = (float(value) for value in np.asarray(square_uv, dtype=float)[:4])
-    factor = max(1, int((u1 - u0) // size))
-    side = max(1, round((u1 - u0) / factor)) * factor
-    x0 = math.floor((u0 + u1 - side) / 2.0 + 0.5)
-    y0 = math.floor(v0 + (u1 - u0 - side) / 2.0 + 0.5)
+    x0, y0, side, _ = crop_pixels(u0, v0, u1, size)
     return np.array([x0 - 0.5, y0 - 0.5, x0 + side - 0.5, y0 + side - 0.5])
 
 
