@@ -23,6 +23,7 @@ Problems (units, size, colours) are one error line naming the file and exit code
 import argparse
 from pathlib import Path
 
+from bbpose_ros.cli.common import rgb
 from bbpose_ros.core.data.mesh_check import check_mesh, MAX_FACES, UNITS, write_bop_model
 from bbpose_ros.core.errors import InputError
 
@@ -54,17 +55,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                              'stem)')
     parser.set_defaults(func=run)
     return parser
-
-
-def rgb(text: str) -> tuple[int, int, int]:
-    """Parse 'R,G,B' (0-255 each) into a tuple (an argparse type)."""
-    try:
-        values = tuple(int(part) for part in text.split(','))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(0 <= value <= 255 for value in values):
-        raise argparse.ArgumentTypeError(f'expected R,G,B integers 0-255, got {text!r}')
-    return values
 
 
 def run(args: argparse.Namespace) -> int:

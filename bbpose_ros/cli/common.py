@@ -77,3 +77,14 @@ def add_frames_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--max-frames N`` to evaluate or convert only the first N frames."""
     parser.add_argument('--max-frames', type=int, default=None,
                         help='use only the first N frames (default: all)')
+
+
+def rgb(text: str) -> tuple[int, int, int]:
+    """Parse 'R,G,B' (0-255 each) into a tuple (an argparse type)."""
+    try:
+        values = tuple(int(part) for part in text.split(','))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(0 <= value <= 255 for value in values):
+        raise argparse.ArgumentTypeError(f'expected R,G,B integers 0-255, got {text!r}')
+    return values

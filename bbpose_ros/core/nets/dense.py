@@ -111,15 +111,19 @@ class DenseNet(nn.Module):
 
     def forward(self, crops: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """Compute the maps (N, 5, M, M) of crops (N, 3, S, S) of ``object_index`` (N,)."""
+        maps = self.output(self.features(crops))
+        # Channels 5 k .. 5 k + 4 of each crop's object k, by a gather (no shape arithmetic
+        # in an exported graph; the batch stays free).
+        index = object_index.view(-1, 1, 1, 1) * PER_OBJECT + \
+            torch.arange(PER_OBJECT, device=maps.device).view(1, -1, 1, 1)
+        return maps.gather(1, index.expand(-1, -1, maps.shape[2], maps.shape[3]))
+
+    def features(self, crops: torch.Tensor) -> torch.Tensor:
+        """(N, channels / 2, M, M): the decoded features the per-object 1x1 output reads."""
         s2, s4, s8, s16 = self.trunk.forward_features(crops, TAPS)
         x = self.laterals[3](s16)
         x = F.interpolate(x, scale_factor=2.0, mode='nearest') + self.laterals[2](s8)
         x = F.interpolate(x, scale_factor=2.0, mode='nearest') + self.laterals[1](s4)
         x = self.reduce(self.mix4(x))
         x = F.interpolate(x, scale_factor=2.0, mode='nearest') + self.laterals[0](s2)
-        maps = self.output(self.mix2(x))
-        # Channels 5 k .. 5 k + 4 of each crop's object k, by a gather (no shape arithmetic
-        # in an exported graph; the batch stays free).
-        index = object_index.view(-1, 1, 1, 1) * PER_OBJECT + \
-            torch.arange(PER_OBJECT, device=maps.device).view(1, -1, 1, 1)
-        return maps.gather(1, index.expand(-1, -1, maps.shape[2], maps.shape[3]))
+        return self.mix2(x)

@@ -143,6 +143,11 @@ class CenterBoxNet(nn.Module):
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Heatmap logits and log box sides on the stride-8 grid."""
+        features = self.features(images)
+        return self.heatmap(features), self.box(features)
+
+    def features(self, images: torch.Tensor) -> torch.Tensor:
+        """(N, width, H/8, W/8): the merged stride-8 features both 1x1 heads read."""
         if self.config.backbone == 'lite0':
             fine, coarse = self.trunk.forward_features(images, LITE0_TAPS)
             fine, coarse = self.lateral_fine(fine), self.lateral(coarse)
@@ -150,8 +155,7 @@ class CenterBoxNet(nn.Module):
             fine = self.stage3(self.stage2(self.stage1(normalize_input(images))))
             coarse = self.lateral(self.stage4(fine))
         up = F.interpolate(coarse, size=fine.shape[-2:], mode='nearest')
-        features = self.merge(fine + up)
-        return self.heatmap(features), self.box(features)
+        return self.merge(fine + up)
 
 
 class PeakOutputs(nn.Module):

@@ -211,12 +211,22 @@ class QNet(nn.Module):
 
         With one hypothesis the score is 0.
         """
-        raw = self._heads(crops, object_index)
+        return self.split_hypotheses(self._heads(crops, object_index))
+
+    def split_hypotheses(self, raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One head's outputs (N, head_width) -> quaternions (N, H, 4) and scores (N, H)."""
         count = self.config.hypotheses
         if count == 1:
             return self.normalize(raw).unsqueeze(1), torch.zeros_like(raw[:, :1])
         quats = self.normalize(raw[:, :4 * count].reshape(-1, count, 4))
         return quats, raw[:, 4 * count:]
+
+    def features(self, crops: torch.Tensor) -> torch.Tensor:
+        """(N, fc_size): the hidden FC layer's output the heads read (shared trunk only)."""
+        if len(self.trunks) != 1:
+            raise ValueError('features() needs the shared trunk (sharing "shared")')
+        x = crops if self.config.backbone == 'lite0' else normalize_input(crops)
+        return self.trunks[0](x)
 
     def _heads(self, crops, object_index):
         """Each crop's own head output (N, head_width), before q-normalization."""

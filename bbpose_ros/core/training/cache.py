@@ -121,7 +121,8 @@ def _render(index):
 
 
 def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, count: int,
-                input_size: Sequence[int], workers: int = 2, progress: bool = True) -> None:
+                input_size: Sequence[int], workers: int = 2, progress: bool = True,
+                shard_size: int = SHARD_SIZE) -> None:
     """
     Render ``count`` scenes of a SyntheticScenes into ``cache_dir`` (resumable).
 
@@ -133,6 +134,7 @@ def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, co
         input_size: (width, height) of the stored detector images.
         workers: rendering processes (each makes its own GL context).
         progress: show a tqdm bar.
+        shard_size: scenes per shard file.
 
     """
     from bbpose_ros.core.synth.table_scenes import TableScenes
@@ -141,12 +143,12 @@ def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, co
     meta = {'objects': scenes.target_names, 'seed': scenes.seed,
             'camera': camera_meta(scenes.camera), 'input_size': list(input_size),
             'crop_size': CROP_SIZE,
-            'crop_context': CROP_CONTEXT, 'shard_size': SHARD_SIZE,
+            'crop_context': CROP_CONTEXT, 'shard_size': shard_size,
             'background_photos': photo_count(scenes),
             'inplane_range_deg': list(scenes.config.inplane_range_deg)}
     if isinstance(scenes, TableScenes):     # caches of the other style keep their meta
         meta['scene_style'] = 'table'
-    render_shards(cache_dir, meta, whole_shards(count, SHARD_SIZE), SHARD_SIZE, _init_worker,
+    render_shards(cache_dir, meta, whole_shards(count, shard_size), shard_size, _init_worker,
                   (scenes, tuple(input_size)), _render, write_scene_shard, 'scene', workers,
                   progress)
 

@@ -136,22 +136,23 @@ class DenseBatches:
         models: {name: ObjectModel} for the model boxes and symmetries.
         settings: DenseTrainSettings.
         seed: seed of the draws.
+        require_all: refuse a cache that lacks one of the network's objects (False: those
+            objects get no batches, as when only a new object's rows learn).
 
     """
 
     def __init__(self, cache: CropCache, config: DenseConfig,
                  models: Mapping[str, ObjectModel], settings: DenseTrainSettings,
-                 seed: int) -> None:
+                 seed: int, require_all: bool = True) -> None:
         if not cache.dense_size:
             raise InputError('the crop cache has no dense targets; render one with "bbpose '
                              f'train render-crops --dense-size {config.map_size}"')
         missing = [name for name in config.objects if name not in cache.objects]
-        if missing:
+        if missing and require_all:
             raise InputError(f'the crop cache lacks the object(s) {", ".join(missing)}')
         self.cache, self.config, self.settings = cache, config, settings
-        net_index = np.full(len(cache.objects), -1)
-        net_index[[cache.objects.index(n) for n in config.objects]] = \
-            np.arange(len(config.objects))
+        net_index = np.array([config.objects.index(name) if name in config.objects else -1
+                              for name in cache.objects])
         self.net_index = net_index[cache.object]
         held_out = cache.held_out(settings.val_fraction)
         usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)

@@ -90,9 +90,8 @@ class QNetBatches:
                  models: Mapping[str, ObjectModel], settings: QNetTrainSettings,
                  seed: int) -> None:
         self.cache, self.config, self.settings = cache, config, settings
-        cache_index = [cache.objects.index(name) for name in config.objects]
-        net_index = np.full(len(cache.objects), -1)
-        net_index[cache_index] = np.arange(len(cache_index))
+        net_index = np.array([config.objects.index(name) if name in config.objects else -1
+                              for name in cache.objects])
         self.net_index = net_index[cache.object]
         held_out = cache.held_out(settings.val_fraction)
         usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)

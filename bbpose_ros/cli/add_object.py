@@ -1,0 +1,162 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose add-object``: a new object from its mesh to weight files the node loads.
+
+The mesh is checked as ``bbpose check-mesh`` checks it; the shipped networks (or those of
+``--base-weights``) get one more object, trained on table-top renders with everything they
+already know frozen (``core.training.teach_object``). ``bbpose remove-object`` drops an
+object's rows instead: the base of a leave-one-out measurement.
+"""
+
+import argparse
+import os
+from pathlib import Path
+
+from bbpose_ros.cli.common import add_dataset_argument, rgb
+from bbpose_ros.core.errors import InputError
+
+NETWORK_FILES = {'detector': 'detector.pt', 'qnet': 'qnet.pt', 'dense': 'dense.pt'}
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``bbpose add-object`` and ``bbpose remove-object``."""
+    from bbpose_ros.core.data.mesh_check import MAX_FACES, UNITS
+    from bbpose_ros.core.inference.weights import WEIGHTS_DIR
+    add = subparsers.add_parser(
+        'add-object', help='teach the networks a new object from its mesh (minutes on a CPU)',
+        description='Check a mesh, render table-top scenes of it among the known objects, '
+                    'and extend the detector, Q-Net and the dense net by one object (only its '
+                    'new output rows learn; what the networks know stays as it is). Writes '
+                    'to --out: the weight files and int8 graphs, dataset/ (meshes for the '
+                    'node), params.yaml (start the node with it), preview.png and '
+                    'report.json. Rerun the same command to resume.')
+    add.add_argument('--mesh', required=True, type=Path,
+                     help='mesh file (PLY, OBJ, STL, GLB; a texture becomes vertex colours)')
+    add.add_argument('--name', required=True,
+                     help='the object name: topics ~/<name>/pose, the objects parameter')
+    add.add_argument('--out', required=True, type=Path, help='output folder (resumable)')
+    add.add_argument('--units', choices=tuple(UNITS), default='mm',
+                     help="the mesh file's length unit (default %(default)s)")
+    add.add_argument('--color', type=rgb, default=None, metavar='R,G,B',
+                     help='paint the whole mesh this colour (needed when it has none)')
+    add.add_argument('--max-faces', type=int, default=MAX_FACES,
+                     help='decimate meshes with more faces (default %(default)s)')
+    add.add_argument('--symmetry', default=None, metavar='AXIS:FOLD',
+                     help='a discrete symmetry, e.g. z:2 (the same after half a turn about '
+                          "the model's z axis through its box centre; default none)")
+    add_dataset_argument(add)
+    add.add_argument('--base-weights', type=Path, default=WEIGHTS_DIR,
+                     help='folder of the detector.pt, qnet.pt and dense.pt to extend, whose '
+                          'objects have meshes in --dataset (default: the shipped ones)')
+    add.add_argument('--backgrounds', type=Path, nargs='+', default=None, metavar='DIR',
+                     help='folders of photographs for the backgrounds of the renders (`make '
+                          'photos`; default: procedural textures only)')
+    add.add_argument('--scenes', type=int, default=None,
+                     help='table-top scenes to render for the detector (default 500)')
+    add.add_argument('--crops', type=int, default=None,
+                     help='crops to render for Q-Net and the dense net (default 8000)')
+    add.add_argument('--seed', type=int, default=None, help='seed of renders and training')
+    add.add_argument('--workers', type=int, default=2, help='rendering processes')
+    add.add_argument('--threads', type=int, default=None,
+                     help='torch threads (default: all cores)')
+    add.set_defaults(func=run)
+
+    remove = subparsers.add_parser(
+        'remove-object', help="drop an object's rows from the three networks",
+        description='Write detector.pt, qnet.pt and dense.pt without one object: the other '
+                    "objects' outputs unchanged (the base of a leave-one-out test of "
+                    '`bbpose add-object`).')
+    remove.add_argument('--name', required=True, help='the object to drop')
+    remove.add_argument('--base-weights', type=Path, default=WEIGHTS_DIR,
+                        help='folder of the three weight files (default: the shipped ones)')
+    remove.add_argument('--out', required=True, type=Path,
+                        help='folder for the three files (must not hold them yet)')
+    remove.set_defaults(func=run_remove)
+
+
+def base_weight_files(folder: Path) -> dict[str, Path]:
+    """{kind: path} of the three weight files in ``folder``; InputError if one is missing."""
+    files = {kind: Path(folder) / name for kind, name in NETWORK_FILES.items()}
+    missing = [str(path) for path in files.values() if not path.is_file()]
+    if missing:
+        raise InputError(f'weight file(s) not found: {", ".join(missing)}')
+    return files
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``bbpose add-object``; returns the exit status."""
+    import json
+    import sys
+
+    import numpy as np
+    import torch
+
+    from bbpose_ros.core.data.mesh_check import check_mesh
+    from bbpose_ros.core.data.models import check_names
+    from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
+    from bbpose_ros.core.training.teach_object import (AddObject, AddObjectSettings,
+                                                       axis_symmetries, NewObject)
+    check_names({1: args.name}, '--name')
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    mesh = check_mesh(args.mesh, args.units, args.color, args.max_faces)
+    for note in mesh.notes:
+        print(f'note: {note}')
+    symmetries = np.zeros((0, 4, 4))
+    if args.symmetry:
+        axis, _, fold = args.symmetry.partition(':')
+        if not fold.isdigit():
+            raise InputError(f'--symmetry is AXIS:FOLD, e.g. z:2, got {args.symmetry!r}')
+        symmetries = axis_symmetries(mesh, axis, int(fold))
+    given = {'scenes': args.scenes, 'crops': args.crops, 'seed': args.seed,
+             'workers': args.workers}
+    settings = AddObjectSettings(**{k: v for k, v in given.items() if v is not None})
+    for name in ('scenes', 'crops'):
+        if getattr(settings, name) < 1:
+            raise InputError(f'--{name} must be at least 1')
+    backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
+    task = AddObject(NewObject(args.name, mesh, symmetries), base_weight_files(args.base_weights),
+                     args.dataset, args.out, settings, backgrounds)
+    task.report['command'] = ' '.join(sys.argv)
+    report = task.run()
+    print(f'\n{args.name} added in {report["seconds"]["total"] / 60:.1f} min '
+          f'({os.cpu_count()} CPU cores); on held-out renders:')
+    for kind, figures in report.get('held_out_renders', {}).items():
+        print(f'  {kind:9s}' + json.dumps({k: round(v, 3) for k, v in figures.items()}))
+    print(f'preview: {args.out / "preview.png"}\nnode: ros2 run bbpose_ros bbpose_node '
+          f'--ros-args --params-file {args.out / "params.yaml"}')
+    return 0
+
+
+def run_remove(args: argparse.Namespace) -> int:
+    """Run ``bbpose remove-object``; returns the exit status."""
+    from bbpose_ros.core.inference.weights import load_network, save_weights
+    from bbpose_ros.core.training.new_object import with_objects
+    files = base_weight_files(args.base_weights)
+    for kind, path in files.items():
+        target = args.out / NETWORK_FILES[kind]
+        if target.exists():
+            raise InputError(f'{target} exists already; choose a new --out')
+        network = load_network(path, kind)
+        objects = [name for name in network.config.objects if name != args.name]
+        if len(objects) == len(network.config.objects):
+            raise InputError(f'{path} has no object named {args.name!r} '
+                             f'(objects: {", ".join(network.config.objects)})')
+        record = dict(network.metadata.get('training', {}), removed=args.name)
+        args.out.mkdir(parents=True, exist_ok=True)
+        save_weights(target, with_objects(network, objects), kind, record)
+    print(f'wrote {", ".join(NETWORK_FILES.values())} without {args.name} to {args.out}')
+    return 0

@@ -1,0 +1,384 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+One new object, from its checked mesh to weight files the node loads (``bbpose add-object``).
+
+Stages, each written whole into the output folder, so that a run that stops resumes at the
+first stage whose output is missing (the renders resume shard by shard):
+
+1. ``dataset/``: a BOP dataset of the known objects' meshes and the new one (``camera.json``,
+   ``models/`` with ``models_info.json`` and the names table) for the node and the renders.
+2. ``renders/scenes``: table-top scenes at the detector's input size with the new object
+   among the known ones and clutter (only the new object labelled); ``renders/crops``:
+   crops around the new object alone at the dense net's crop size, with dense targets.
+3. ``detector.pt``, ``qnet.pt``, ``dense.pt``: the base networks with a block of rows for
+   the new object, trained on the renders with everything else frozen (``new_object``).
+4. ``detector_int8.onnx``, ``qnet_int8.onnx``: their int8 graphs, calibrated on the renders.
+5. ``preview.png`` (rendered scenes with boxes, crops as Q-Net sees them), ``params.yaml``
+   (the node's parameters) and ``report.json`` (stage times, settings, the figures on the
+   held-out renders).
+
+``inputs.json`` records what the folder was made from; a second run with other inputs is
+refused rather than mixing two objects' files.
+"""
+
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field, replace
+import hashlib
+import json
+from pathlib import Path
+import shutil
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+
+from bbpose_ros.core.data.bop import load_camera
+from bbpose_ros.core.data.mesh_check import CheckedMesh, MM_TO_M, write_bop_model
+from bbpose_ros.core.data.models import (load_bop_models, load_models_info, NAMES_FILE,
+                                         object_names)
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.files import atomic_output, write_json_atomic
+from bbpose_ros.core.inference.int8_graphs import file_sha256, int8_graph_path
+from bbpose_ros.core.inference.weights import load_network, save_weights
+from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
+from bbpose_ros.core.synth.export import camera_json, draw_preview
+from bbpose_ros.core.synth.table_config import TableConfig
+from bbpose_ros.core.synth.table_scenes import TableScenes
+from bbpose_ros.core.training.cache import build_cache, SHARD_SIZE, TrainingCache
+from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, SHARD_SIZE as \
+    CROP_SHARD_SIZE
+from bbpose_ros.core.training.dense_training import DenseTrainSettings
+from bbpose_ros.core.training.detector_training import DetectorTrainSettings
+from bbpose_ros.core.training.new_object import fit_new_rows, RowTraining, with_objects
+from bbpose_ros.core.training.qnet_training import QNetTrainSettings
+from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
+                                                   quantize_network)
+from bbpose_ros.core.training.runs import git_commit
+
+NETWORKS = ('detector', 'qnet', 'dense')
+# Rolls of the rendered objects about the optical axis, degrees: upright objects seen by a
+# roughly upright camera, as the shipped networks were trained.
+INPLANE_RANGE_DEG = (-60.0, 60.0)
+# Per-side box jitter / box size of the rendered crops (the detector's errors).
+CROP_BOX_SIGMA = 0.06
+CALIBRATION_FRAMES = 32
+CALIBRATION_CROPS = 256
+
+
+@dataclass(frozen=True)
+class AddObjectSettings:
+    """
+    How much to render and train (recorded in ``report.json``).
+
+    Attributes:
+        scenes: table-top scenes rendered for the detector.
+        crops: crops rendered for Q-Net and the dense net.
+        detector: RowTraining of the detector's heatmap channel.
+        qnet: RowTraining of Q-Net's head.
+        dense: RowTraining of the dense net's output channels.
+        seed: seed of the renders and draws.
+        workers: rendering processes.
+        scene_shard: scenes per cache shard (renders resume shard by shard).
+        crop_shard: crops per cache shard.
+        held_out: share of the renders kept for the figures in ``report.json``.
+
+    """
+
+    scenes: int = 500
+    crops: int = 8000
+    detector: RowTraining = field(default_factory=lambda: RowTraining(steps=1000, passes=2))
+    qnet: RowTraining = field(default_factory=lambda: RowTraining(steps=2000, passes=3))
+    dense: RowTraining = field(default_factory=lambda: RowTraining(steps=1500, passes=1))
+    seed: int = 101
+    workers: int = 2
+    scene_shard: int = SHARD_SIZE
+    crop_shard: int = CROP_SHARD_SIZE
+    held_out: float = 0.1
+
+
+@dataclass(frozen=True)
+class NewObject:
+    """
+    The object to add.
+
+    Attributes:
+        name: its name (topics ``~/<name>/pose``, the ``objects`` parameter).
+        mesh: the checked mesh (``mesh_check.check_mesh``).
+        symmetries: (K, 4, 4) BOP ``symmetries_discrete`` (translation in mm), the
+            identity not included; (0, 4, 4) for none.
+
+    """
+
+    name: str
+    mesh: CheckedMesh
+    symmetries: np.ndarray
+
+
+def axis_symmetries(mesh: CheckedMesh, axis: str, fold: int) -> np.ndarray:
+    """
+    (fold - 1, 4, 4) BOP symmetries: turns by 360 / ``fold`` deg about a model axis.
+
+    The axis (``'x'``, ``'y'`` or ``'z'``) runs through the centre of the mesh's box; the
+    matrices map model points to model points in millimetres, as BOP writes them.
+    """
+    if axis not in ('x', 'y', 'z') or fold < 2:
+        raise InputError(f'a symmetry is AXIS:FOLD with AXIS x, y or z and FOLD >= 2, got '
+                         f'{axis}:{fold}')
+    centre = (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0)) / 2 / MM_TO_M
+    k = 'xyz'.index(axis)
+    matrices = []
+    for turn in range(1, fold):
+        angle = 2 * np.pi * turn / fold
+        rotation = np.eye(3)
+        i, j = [a for a in range(3) if a != k]
+        rotation[[i, i, j, j], [i, j, i, j]] = (np.cos(angle), -np.sin(angle), np.sin(angle),
+                                                np.cos(angle))
+        matrix = np.eye(4)
+        matrix[:3, :3], matrix[:3, 3] = rotation, centre - rotation @ centre
+        matrices.append(matrix)
+    return np.array(matrices)
+
+
+class AddObject:
+    """
+    The stages of adding ``new`` to the networks of ``base`` into ``out`` (module docstring).
+
+    Args:
+        new: the NewObject.
+        base_weights: {'detector' | 'qnet' | 'dense': weight file} to extend.
+        base_dataset: BOP dataset with the meshes of the base networks' objects.
+        out: output folder.
+        settings: AddObjectSettings.
+        backgrounds: PhotoBackgrounds for the renders, or None (procedural textures).
+        progress: show tqdm bars.
+        log: callable(str) for one line per stage.
+
+    """
+
+    def __init__(self, new: NewObject, base_weights: Mapping[str, Path], base_dataset: Path,
+                 out: Path, settings: AddObjectSettings, backgrounds=None,
+                 progress: bool = True, log: Callable[[str], None] = print) -> None:
+        self.new, self.base_weights = new, {k: Path(v) for k, v in base_weights.items()}
+        self.base_dataset, self.out = Path(base_dataset), Path(out)
+        self.settings, self.backgrounds = settings, backgrounds
+        self.progress, self.log = progress, log
+        self.known = list(load_network(self.base_weights['detector'], 'detector').config.objects)
+        for kind in NETWORKS[1:]:
+            objects = list(load_network(self.base_weights[kind], kind).config.objects)
+            if objects != self.known:
+                raise InputError(f'{self.base_weights[kind]}: objects {objects} differ from '
+                                 f"the detector's {self.known}")
+        if new.name in self.known:
+            raise InputError(f'the base networks know an object named {new.name!r} already; '
+                             'choose another --name')
+        self.objects = self.known + [new.name]
+        self.report: dict[str, Any] = {}
+
+    def run(self) -> dict[str, Any]:
+        """Run the stages not yet done; return the report (also in ``report.json``)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._check_inputs()
+        report_path = self.out / 'report.json'
+        self.report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+        self.report.update(object=self.new.name, objects=self.objects,
+                           settings=asdict(self.settings), git_commit=git_commit())
+        self.report.setdefault('seconds', {})
+        self._stage('dataset', self._dataset, self.out / 'dataset')
+        self._stage('renders', self._renders, None)
+        for kind in NETWORKS:
+            self._stage(kind, lambda kind=kind: self._network(kind), self.out / f'{kind}.pt')
+        self._stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
+        self._stage('preview', self._preview, self.out / 'preview.png')
+        self._params()
+        self.report['seconds']['total'] = round(sum(
+            v for k, v in self.report['seconds'].items() if k != 'total'), 1)
+        write_json_atomic(report_path, self.report)
+        return self.report
+
+    def _stage(self, name, work, output):
+        """Run ``work()`` unless ``output`` exists; time it into the report."""
+        if output is not None and Path(output).exists():
+            self.log(f'[{name}] done before: {output}')
+            return
+        self.log(f'[{name}] ...')
+        start = time.monotonic()
+        work()
+        self.report['seconds'][name] = round(time.monotonic() - start, 1)
+        write_json_atomic(self.out / 'report.json', self.report)
+
+    def _check_inputs(self):
+        """Write ``inputs.json``, or refuse a folder made from other inputs."""
+        inputs = {'name': self.new.name, 'mesh_sha256': _sha256_of_arrays(
+                      self.new.mesh.vertices, self.new.mesh.faces, self.new.mesh.colors),
+                  'symmetries': np.round(self.new.symmetries, 6).tolist(),
+                  'base_weights': {k: file_sha256(v) for k, v in self.base_weights.items()},
+                  'base_dataset': str(self.base_dataset.resolve()),
+                  'settings': asdict(self.settings),
+                  'backgrounds': 0 if self.backgrounds is None else len(self.backgrounds.paths)}
+        path = self.out / 'inputs.json'
+        if path.is_file():
+            before = json.loads(path.read_text())
+            changed = sorted(k for k in set(before) | set(inputs)
+                             if before.get(k) != inputs.get(k))
+            if changed:
+                raise InputError(f'{self.out} was made from other inputs ({", ".join(changed)} '
+                                 f'differ, {path}); choose a new --out')
+        write_json_atomic(path, inputs)
+
+    def _dataset(self):
+        """Write ``dataset/``: camera, the known meshes and the new one, names table."""
+        names = object_names(self.base_dataset)
+        ids = {name: obj_id for obj_id, name in names.items()}
+        missing = [name for name in self.known if name not in ids]
+        if missing:
+            raise InputError(f'{self.base_dataset}: no mesh for the base objects '
+                             f'{", ".join(missing)}')
+        info = load_models_info(self.base_dataset / 'models' / 'models_info.json')
+        new_id = max(names) + 1
+        with atomic_output(self.out / 'dataset') as staging:
+            staging.mkdir()
+            write_bop_model(self.new.mesh, staging / 'models', new_id, self.new.name)
+            models = staging / 'models'
+            entry = json.loads((models / 'models_info.json').read_text())[str(new_id)]
+            if len(self.new.symmetries):
+                entry['symmetries_discrete'] = [m.reshape(-1).tolist()
+                                                for m in self.new.symmetries]
+            table = {str(new_id): entry}
+            for name in self.known:
+                obj_id = ids[name]
+                shutil.copyfile(self.base_dataset / 'models' / f'obj_{obj_id:06d}.ply',
+                                models / f'obj_{obj_id:06d}.ply')
+                table[str(obj_id)] = info[obj_id]
+            write_json_atomic(models / 'models_info.json',
+                              dict(sorted(table.items(), key=lambda kv: int(kv[0]))))
+            write_json_atomic(models / NAMES_FILE, {str(i): n for i, n in sorted(
+                {**{ids[n]: n for n in self.known}, new_id: self.new.name}.items())})
+            write_json_atomic(staging / 'camera.json',
+                              camera_json(load_camera(self.base_dataset)))
+
+    def _models(self):
+        return load_bop_models(self.out / 'dataset', self.objects)
+
+    def _renders(self):
+        """Render the scene cache and the crop cache (each resumes its missing shards)."""
+        settings, models = self.settings, self._models()
+        camera = load_camera(self.out / 'dataset')
+        target = {self.new.name: models[self.new.name]}
+        known = {name: models[name] for name in self.known}
+        detector = load_network(self.base_weights['detector'], 'detector')
+        dense = load_network(self.base_weights['dense'], 'dense')
+        scenes = TableScenes(target, camera, settings.seed,
+                             TableConfig(inplane_range_deg=INPLANE_RANGE_DEG),
+                             distractor_models=known, backgrounds=self.backgrounds)
+        build_cache(scenes, self.out / 'renders' / 'scenes', settings.scenes,
+                    detector.config.input_size, settings.workers, self.progress,
+                    settings.scene_shard)
+        crops = CropScenes(target, camera, seed=settings.seed + 1,
+                           config=replace(CROP_SYNTH_CONFIG,
+                                          inplane_range_deg=INPLANE_RANGE_DEG),
+                           crop_size=dense.config.crop_size, context=dense.config.context,
+                           box_sigma=CROP_BOX_SIGMA, backgrounds=self.backgrounds,
+                           dense_size=dense.config.map_size)
+        build_crop_cache(crops, self.out / 'renders' / 'crops', settings.crops,
+                         settings.workers, self.progress, settings.crop_shard)
+
+    def _network(self, kind):
+        """Extend the base network by the new object's rows, train them, write the file."""
+        settings = self.settings
+        network = with_objects(load_network(self.base_weights[kind], kind), self.objects)
+        if kind == 'detector':
+            cache = TrainingCache(self.out / 'renders' / 'scenes')
+            train = DetectorTrainSettings(augment_style='strong', val_fraction=settings.held_out)
+        elif kind == 'qnet':
+            cache = CropCache(self.out / 'renders' / 'crops')
+            train = QNetTrainSettings(augment_style='strong', sign_invariant=True,
+                                      max_inplane_deg=45.0, val_fraction=settings.held_out)
+        else:
+            cache = CropCache(self.out / 'renders' / 'crops')
+            train = DenseTrainSettings(augment_style='strong', coordinate_weight=3.0,
+                                       val_fraction=settings.held_out)
+        rows = getattr(settings, kind)
+        figures = fit_new_rows(network, [self.new.name], cache, self._models(), train, rows,
+                               settings.seed, self.progress)
+        self.report.setdefault('held_out_renders', {})[kind] = figures
+        record = {'command': self.report.get('command', ''), 'git_commit': git_commit(),
+                  'trained': f'rows of {self.new.name} only (bbpose add-object)',
+                  'base': str(self.base_weights[kind]), 'rows': asdict(rows),
+                  'settings': asdict(train), 'validation': figures}
+        save_weights(self.out / f'{kind}.pt', network, kind, record)
+        self.log(f'[{kind}] held-out renders: ' +
+                 ', '.join(f'{k} {v:.3f}' for k, v in figures.items()))
+
+    def _int8(self):
+        """Write the detector's and Q-Net's int8 graphs, calibrated on the scene renders."""
+        cache = TrainingCache(self.out / 'renders' / 'scenes')
+        detector = load_network(self.out / 'detector.pt', 'detector')
+        frames = calibration_images(cache.images, detector.config.input_size,
+                                    CALIBRATION_FRAMES)
+        quantize_network(self.out / 'detector.pt', 'detector', (frames,),
+                         int8_graph_path(self.out / 'detector.pt'), 'bbpose add-object')
+        qnet = load_network(self.out / 'qnet.pt', 'qnet')
+        crops = calibration_crops(cache, qnet.config, CALIBRATION_CROPS, self.settings.seed)
+        quantize_network(self.out / 'qnet.pt', 'qnet', crops,
+                         int8_graph_path(self.out / 'qnet.pt'), 'bbpose add-object')
+
+    def _preview(self):
+        """Write ``preview.png``: 4 rendered scenes with boxes over 16 crops at Q-Net's size."""
+        models = self._models()
+        scenes = TableScenes({self.new.name: models[self.new.name]},
+                             load_camera(self.out / 'dataset'), self.settings.seed,
+                             TableConfig(inplane_range_deg=INPLANE_RANGE_DEG),
+                             distractor_models={n: models[n] for n in self.known},
+                             backgrounds=self.backgrounds)
+        try:
+            images = [draw_preview(scenes.sample(k)) for k in range(4)]
+        finally:
+            scenes.close()
+        height, width = 240, 320
+        top = np.concatenate([cv2.resize(i, (width, height), interpolation=cv2.INTER_AREA)
+                              for i in images], axis=1)
+        crops = CropCache(self.out / 'renders' / 'crops')
+        size = load_network(self.out / 'qnet.pt', 'qnet').config.crop_size
+        picked = crops.crop[:16]
+        small = [cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in picked]
+        side = top.shape[1] // 16
+        strip = np.concatenate([cv2.resize(c, (side, side), interpolation=cv2.INTER_NEAREST)
+                                for c in small], axis=1)
+        strip = np.pad(strip, ((0, 0), (0, top.shape[1] - strip.shape[1]), (0, 0)))
+        sheet = np.concatenate([top, strip], axis=0)
+        png = cv2.imencode('.png', cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))[1]
+        with atomic_output(self.out / 'preview.png') as tmp:
+            tmp.write_bytes(png.tobytes())
+
+    def _params(self):
+        """Write ``params.yaml``: the node's objects, dataset and weight files."""
+        out = self.out.resolve()
+        lines = ['# bbpose_node parameters written by bbpose add-object (config/bbpose.yaml',
+                 '# documents every parameter; these override its defaults).',
+                 '/**:', '  ros__parameters:',
+                 f'    objects: [{", ".join(self.objects)}]',
+                 f"    dataset_dir: '{out / 'dataset'}'"]
+        lines += [f"    {kind}_weights: '{out / f'{kind}.pt'}'" for kind in NETWORKS]
+        with atomic_output(self.out / 'params.yaml') as tmp:
+            tmp.write_text('\n'.join(lines) + '\n')
+
+
+def _sha256_of_arrays(*arrays: np.ndarray) -> str:
+    digest = hashlib.sha256()
+    for array in arrays:
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
