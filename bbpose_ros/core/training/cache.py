@@ -122,7 +122,7 @@ def _render(index):
 
 def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, count: int,
                 input_size: Sequence[int], workers: int = 2, progress: bool = True,
-                shard_size: int = SHARD_SIZE) -> None:
+                shard_size: int | None = None) -> None:
     """
     Render ``count`` scenes of a SyntheticScenes into ``cache_dir`` (resumable).
 
@@ -134,10 +134,11 @@ def build_cache(scenes: SyntheticScenes | TableScenes, cache_dir: Path | str, co
         input_size: (width, height) of the stored detector images.
         workers: rendering processes (each makes its own GL context).
         progress: show a tqdm bar.
-        shard_size: scenes per shard file.
+        shard_size: scenes per shard file (default ``SHARD_SIZE``).
 
     """
     from bbpose_ros.core.synth.table_scenes import TableScenes
+    shard_size = SHARD_SIZE if shard_size is None else shard_size
     cache_dir = Path(cache_dir)
     cache_dir.mkdir(parents=True, exist_ok=True)
     meta = {'objects': scenes.target_names, 'seed': scenes.seed,
