@@ -25,7 +25,7 @@ import argparse
 import os
 from pathlib import Path
 
-from bbpose_ros.cli.common import add_dataset_argument, rgb
+from bbpose_ros.cli.common import add_dataset_argument, add_mesh_arguments
 from bbpose_ros.core.errors import InputError
 
 NETWORK_FILES = {'detector': 'detector.pt', 'qnet': 'qnet.pt', 'dense': 'dense.pt'}
@@ -33,7 +33,6 @@ NETWORK_FILES = {'detector': 'detector.pt', 'qnet': 'qnet.pt', 'dense': 'dense.p
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``bbpose add-object`` and ``bbpose remove-object``."""
-    from bbpose_ros.core.data.mesh_check import MAX_FACES, UNITS
     from bbpose_ros.core.inference.weights import WEIGHTS_DIR
     add = subparsers.add_parser(
         'add-object', help='teach the networks a new object from its mesh (minutes on a CPU)',
@@ -43,17 +42,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'to --out: the weight files and int8 graphs, dataset/ (meshes for the '
                     'node), params.yaml (start the node with it), preview.png and '
                     'report.json. Rerun the same command to resume.')
-    add.add_argument('--mesh', required=True, type=Path,
-                     help='mesh file (PLY, OBJ, STL, GLB; a texture becomes vertex colours)')
+    add_mesh_arguments(add)
     add.add_argument('--name', required=True,
                      help='the object name: topics ~/<name>/pose, the objects parameter')
     add.add_argument('--out', required=True, type=Path, help='output folder (resumable)')
-    add.add_argument('--units', choices=tuple(UNITS), default='mm',
-                     help="the mesh file's length unit (default %(default)s)")
-    add.add_argument('--color', type=rgb, default=None, metavar='R,G,B',
-                     help='paint the whole mesh this colour (needed when it has none)')
-    add.add_argument('--max-faces', type=int, default=MAX_FACES,
-                     help='decimate meshes with more faces (default %(default)s)')
     add.add_argument('--symmetry', default=None, metavar='AXIS:FOLD',
                      help='a discrete symmetry, e.g. z:2 (the same after half a turn about '
                           "the model's z axis through its box centre; default none)")
@@ -129,8 +121,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f'--{name} must be at least 1')
     backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
     task = AddObject(NewObject(args.name, mesh, symmetries), base_weight_files(args.base_weights),
-                     args.dataset, args.out, settings, backgrounds)
-    task.report['command'] = ' '.join(sys.argv)
+                     args.dataset, args.out, settings, backgrounds, command=' '.join(sys.argv))
     report = task.run()
     print(f'\n{args.name} added in {report["seconds"]["total"] / 60:.1f} min '
           f'({os.cpu_count()} CPU cores); on held-out renders:')

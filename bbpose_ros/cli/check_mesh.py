@@ -23,8 +23,8 @@ Problems (units, size, colours) are one error line naming the file and exit code
 import argparse
 from pathlib import Path
 
-from bbpose_ros.cli.common import rgb
-from bbpose_ros.core.data.mesh_check import check_mesh, MAX_FACES, UNITS, write_bop_model
+from bbpose_ros.cli.common import add_mesh_arguments
+from bbpose_ros.core.data.mesh_check import check_mesh, write_bop_model
 from bbpose_ros.core.errors import InputError
 
 
@@ -37,15 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                     '(a huge mesh is decimated). With --out, write it as a BOP models/ '
                     'folder: the PLY in mm with colours, its models_info.json entry '
                     '(diameter and box) and the names table models_names.json.')
-    parser.add_argument('--mesh', required=True, type=Path,
-                        help='mesh file (PLY, OBJ, STL, GLB; a texture becomes vertex colours)')
-    parser.add_argument('--units', choices=tuple(UNITS), default='mm',
-                        help="the file's length unit (default %(default)s, as BOP's)")
-    parser.add_argument('--color', type=rgb, default=None, metavar='R,G,B',
-                        help='paint the whole mesh this colour, 0-255 each (needed when it has '
-                             'no colours)')
-    parser.add_argument('--max-faces', type=int, default=MAX_FACES,
-                        help='decimate meshes with more faces (default %(default)s)')
+    add_mesh_arguments(parser)
     parser.add_argument('--out', type=Path, default=None,
                         help='write a BOP models/ folder of the object here (must not exist)')
     parser.add_argument('--obj-id', type=int, default=1,

@@ -88,3 +88,17 @@ def rgb(text: str) -> tuple[int, int, int]:
     if len(values) != 3 or not all(0 <= value <= 255 for value in values):
         raise argparse.ArgumentTypeError(f'expected R,G,B integers 0-255, got {text!r}')
     return values
+
+
+def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--mesh`` (required), ``--units``, ``--color`` and ``--max-faces`` of a new mesh."""
+    from bbpose_ros.core.data.mesh_check import MAX_FACES, UNITS
+    parser.add_argument('--mesh', required=True, type=Path,
+                        help='mesh file (PLY, OBJ, STL, GLB; a texture becomes vertex colours)')
+    parser.add_argument('--units', choices=tuple(UNITS), default='mm',
+                        help="the file's length unit (default %(default)s, as BOP's)")
+    parser.add_argument('--color', type=rgb, default=None, metavar='R,G,B',
+                        help='paint the whole mesh this colour, 0-255 each (needed when it has '
+                             'no colours)')
+    parser.add_argument('--max-faces', type=int, default=MAX_FACES,
+                        help='decimate meshes with more faces (default %(default)s)')

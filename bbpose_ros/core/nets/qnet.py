@@ -230,10 +230,10 @@ class QNet(nn.Module):
 
     def _heads(self, crops, object_index):
         """Each crop's own head output (N, head_width), before q-normalization."""
-        x = crops if self.config.backbone == 'lite0' else normalize_input(crops)
         if len(self.trunks) == 1:
-            features = self.trunks[0](x)
+            features = self.features(crops)
         else:
+            x = crops if self.config.backbone == 'lite0' else normalize_input(crops)
             features = x.new_empty((len(x), self.config.fc_size))
             for k in torch.unique(object_index).tolist():
                 chosen = object_index == k

@@ -106,7 +106,6 @@ def with_objects(network: Network, objects: Sequence[str]) -> Network:
                                              for n in objects])
     copy = type(network)(replace(network.config, objects=objects))
     copy.load_state_dict({**state, **grown})
-    copy.metadata = getattr(network, 'metadata', {})
     return copy
 
 

@@ -36,6 +36,7 @@ refused rather than mixing two objects' files.
 
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 import hashlib
 import json
 from pathlib import Path
@@ -166,19 +167,22 @@ class AddObject:
         backgrounds: PhotoBackgrounds for the renders, or None (procedural textures).
         progress: show tqdm bars.
         log: callable(str) for one line per stage.
+        command: the command line, recorded in the report and the weight files.
 
     """
 
     def __init__(self, new: NewObject, base_weights: Mapping[str, Path], base_dataset: Path,
                  out: Path, settings: AddObjectSettings, backgrounds=None,
-                 progress: bool = True, log: Callable[[str], None] = print) -> None:
+                 progress: bool = True, log: Callable[[str], None] = print,
+                 command: str = '') -> None:
         self.new, self.base_weights = new, {k: Path(v) for k, v in base_weights.items()}
         self.base_dataset, self.out = Path(base_dataset), Path(out)
         self.settings, self.backgrounds = settings, backgrounds
-        self.progress, self.log = progress, log
-        self.known = list(load_network(self.base_weights['detector'], 'detector').config.objects)
+        self.progress, self.log, self.command = progress, log, command
+        self.base = {kind: load_network(self.base_weights[kind], kind) for kind in NETWORKS}
+        self.known = list(self.base['detector'].config.objects)
         for kind in NETWORKS[1:]:
-            objects = list(load_network(self.base_weights[kind], kind).config.objects)
+            objects = list(self.base[kind].config.objects)
             if objects != self.known:
                 raise InputError(f'{self.base_weights[kind]}: objects {objects} differ from '
                                  f"the detector's {self.known}")
@@ -194,7 +198,7 @@ class AddObject:
         self._check_inputs()
         report_path = self.out / 'report.json'
         self.report = json.loads(report_path.read_text()) if report_path.is_file() else {}
-        self.report.update(object=self.new.name, objects=self.objects,
+        self.report.update(object=self.new.name, objects=self.objects, command=self.command,
                            settings=asdict(self.settings), git_commit=git_commit())
         self.report.setdefault('seconds', {})
         self._stage('dataset', self._dataset, self.out / 'dataset')
@@ -270,36 +274,40 @@ class AddObject:
             write_json_atomic(staging / 'camera.json',
                               camera_json(load_camera(self.base_dataset)))
 
-    def _models(self):
+    @cached_property
+    def models(self) -> dict:
+        """{name: ObjectModel} of ``dataset/`` (known objects and the new one)."""
         return load_bop_models(self.out / 'dataset', self.objects)
+
+    def _table_scenes(self) -> TableScenes:
+        """Return the detector's scene source: the new object labelled, the known ones clutter."""
+        return TableScenes({self.new.name: self.models[self.new.name]},
+                           load_camera(self.out / 'dataset'), self.settings.seed,
+                           TableConfig(inplane_range_deg=INPLANE_RANGE_DEG),
+                           distractor_models={n: self.models[n] for n in self.known},
+                           backgrounds=self.backgrounds)
 
     def _renders(self):
         """Render the scene cache and the crop cache (each resumes its missing shards)."""
-        settings, models = self.settings, self._models()
-        camera = load_camera(self.out / 'dataset')
-        target = {self.new.name: models[self.new.name]}
-        known = {name: models[name] for name in self.known}
-        detector = load_network(self.base_weights['detector'], 'detector')
-        dense = load_network(self.base_weights['dense'], 'dense')
-        scenes = TableScenes(target, camera, settings.seed,
-                             TableConfig(inplane_range_deg=INPLANE_RANGE_DEG),
-                             distractor_models=known, backgrounds=self.backgrounds)
-        build_cache(scenes, self.out / 'renders' / 'scenes', settings.scenes,
-                    detector.config.input_size, settings.workers, self.progress,
+        settings = self.settings
+        dense = self.base['dense'].config
+        build_cache(self._table_scenes(), self.out / 'renders' / 'scenes', settings.scenes,
+                    self.base['detector'].config.input_size, settings.workers, self.progress,
                     settings.scene_shard)
-        crops = CropScenes(target, camera, seed=settings.seed + 1,
+        crops = CropScenes({self.new.name: self.models[self.new.name]},
+                           load_camera(self.out / 'dataset'), seed=settings.seed + 1,
                            config=replace(CROP_SYNTH_CONFIG,
                                           inplane_range_deg=INPLANE_RANGE_DEG),
-                           crop_size=dense.config.crop_size, context=dense.config.context,
+                           crop_size=dense.crop_size, context=dense.context,
                            box_sigma=CROP_BOX_SIGMA, backgrounds=self.backgrounds,
-                           dense_size=dense.config.map_size)
+                           dense_size=dense.map_size)
         build_crop_cache(crops, self.out / 'renders' / 'crops', settings.crops,
                          settings.workers, self.progress, settings.crop_shard)
 
     def _network(self, kind):
         """Extend the base network by the new object's rows, train them, write the file."""
         settings = self.settings
-        network = with_objects(load_network(self.base_weights[kind], kind), self.objects)
+        network = with_objects(self.base[kind], self.objects)
         if kind == 'detector':
             cache = TrainingCache(self.out / 'renders' / 'scenes')
             train = DetectorTrainSettings(augment_style='strong', val_fraction=settings.held_out)
@@ -312,10 +320,10 @@ class AddObject:
             train = DenseTrainSettings(augment_style='strong', coordinate_weight=3.0,
                                        val_fraction=settings.held_out)
         rows = getattr(settings, kind)
-        figures = fit_new_rows(network, [self.new.name], cache, self._models(), train, rows,
+        figures = fit_new_rows(network, [self.new.name], cache, self.models, train, rows,
                                settings.seed, self.progress)
         self.report.setdefault('held_out_renders', {})[kind] = figures
-        record = {'command': self.report.get('command', ''), 'git_commit': git_commit(),
+        record = {'command': self.command, 'git_commit': git_commit(),
                   'trained': f'rows of {self.new.name} only (bbpose add-object)',
                   'base': str(self.base_weights[kind]), 'rows': asdict(rows),
                   'settings': asdict(train), 'validation': figures}
@@ -326,8 +334,7 @@ class AddObject:
     def _int8(self):
         """Write the detector's and Q-Net's int8 graphs, calibrated on the scene renders."""
         cache = TrainingCache(self.out / 'renders' / 'scenes')
-        detector = load_network(self.out / 'detector.pt', 'detector')
-        frames = calibration_images(cache.images, detector.config.input_size,
+        frames = calibration_images(cache.images, self.base['detector'].config.input_size,
                                     CALIBRATION_FRAMES)
         quantize_network(self.out / 'detector.pt', 'detector', (frames,),
                          int8_graph_path(self.out / 'detector.pt'), 'bbpose add-object')
@@ -338,12 +345,7 @@ class AddObject:
 
     def _preview(self):
         """Write ``preview.png``: 4 rendered scenes with boxes over 16 crops at Q-Net's size."""
-        models = self._models()
-        scenes = TableScenes({self.new.name: models[self.new.name]},
-                             load_camera(self.out / 'dataset'), self.settings.seed,
-                             TableConfig(inplane_range_deg=INPLANE_RANGE_DEG),
-                             distractor_models={n: models[n] for n in self.known},
-                             backgrounds=self.backgrounds)
+        scenes = self._table_scenes()
         try:
             images = [draw_preview(scenes.sample(k)) for k in range(4)]
         finally:
@@ -352,7 +354,7 @@ class AddObject:
         top = np.concatenate([cv2.resize(i, (width, height), interpolation=cv2.INTER_AREA)
                               for i in images], axis=1)
         crops = CropCache(self.out / 'renders' / 'crops')
-        size = load_network(self.out / 'qnet.pt', 'qnet').config.crop_size
+        size = self.base['qnet'].config.crop_size
         picked = crops.crop[:16]
         small = [cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in picked]
         side = top.shape[1] // 16
