@@ -47,7 +47,7 @@ NAME = 'redbox'
 # Small enough for CI, large enough for the detector to find the box in its own scenes.
 TINY = AddObjectSettings(scenes=48, crops=160, scene_shard=48, crop_shard=160,
                          detector=RowTraining(steps=300, batch=8, passes=1),
-                         qnet=RowTraining(steps=60, passes=1),
+                         qnet=RowTraining(steps=60, passes=1, seeds=2),
                          dense=RowTraining(steps=30, batch=8, passes=1), workers=2,
                          held_out=0.25)
 

@@ -102,7 +102,8 @@ class AddObjectSettings:
     scenes: int = 500
     crops: int = 8000
     detector: RowTraining = field(default_factory=lambda: RowTraining(steps=1000, passes=2))
-    qnet: RowTraining = field(default_factory=lambda: RowTraining(steps=2000, passes=3))
+    qnet: RowTraining = field(default_factory=lambda: RowTraining(steps=2000, passes=3,
+                                                                  seeds=3))
     dense: RowTraining = field(default_factory=lambda: RowTraining(steps=1500, passes=1))
     seed: int = 101
     workers: int = 2
