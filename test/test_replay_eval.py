@@ -19,6 +19,7 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader
@@ -91,3 +92,14 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert f'video of {FRAMES} frames' in result.stdout
     assert {p.name for p in (tmp_path / 'plots').iterdir()} >= {
         'recall_curves.png', 'objects.png', 'overlay_0000.png'}
+
+
+def test_objects_without_ground_truth_report_what_was_published():
+    from bbpose_ros.cli.graph.replay import Recording
+    from bbpose_ros.cli.replay_eval import unscored_poses
+
+    pose = (np.eye(3), np.array([0.0, 0.0, 1.0]))
+    recording = Recording(poses={1: [('toy', *pose), ('duck', *pose)], 2: [('toy', *pose)],
+                                 3: []})
+    objects = {'toy': {'n': 0}, 'duck': {'n': 2}, 'part': {'n': 0}}
+    assert unscored_poses(recording, objects) == {'toy': 2, 'part': 0}

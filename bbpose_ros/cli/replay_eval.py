@@ -23,6 +23,7 @@ ground truth by ``core.eval.recorded_poses`` with the scoring code of ``bbpose e
 """
 
 import argparse
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 import sys
@@ -142,6 +143,17 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
     return recording
 
 
+def unscored_poses(recording: Recording, objects: dict) -> dict[str, int]:
+    """
+    Return {object: poses the node published} for the objects without ground truth.
+
+    ``objects``: the report's per-object figures (``n``: ground-truth instances), e.g. an
+    object added with ``bbpose add-object`` replayed on a bag of LM-O frames.
+    """
+    published = Counter(name for poses in recording.poses.values() for name, _, _ in poses)
+    return {name: published[name] for name, figures in objects.items() if figures['n'] == 0}
+
+
 def run(args: argparse.Namespace) -> int:
     """Replay, score, print the table and write the JSON, bag and plots; returns 0."""
     if args.video is not None:
@@ -170,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
     report['config'] = {'bag': str(args.bag), 'params': str(args.params),
                         'param_overrides': list(args.param), 'results_bag': str(bag_path)}
     print(format_report(report))
+    for name, count in unscored_poses(recording, report['objects']).items():
+        print(f'{name}: no ground truth in the bag, {count} poses published (not scored)')
     print(f'frames: {report["frames"]["sent"]} sent, {report["frames"]["answered"]} answered')
     detections = report['detections']
     print(f'~/detections: {detections["arrays"]} arrays, {detections["detections"]} '
