@@ -27,6 +27,8 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
+from bbpose_ros.cli.graph.replay import Recording
+from bbpose_ros.cli.replay_eval import unscored_poses
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
@@ -95,9 +97,6 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
 
 
 def test_objects_without_ground_truth_report_what_was_published():
-    from bbpose_ros.cli.graph.replay import Recording
-    from bbpose_ros.cli.replay_eval import unscored_poses
-
     pose = (np.eye(3), np.array([0.0, 0.0, 1.0]))
     recording = Recording(poses={1: [('toy', *pose), ('duck', *pose)], 2: [('toy', *pose)],
                                  3: []})
