@@ -143,7 +143,7 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
     return recording
 
 
-def unscored_poses(recording: Recording, objects: dict) -> dict[str, int]:
+def unscored_poses(recording: Recording, objects: Mapping[str, Mapping]) -> dict[str, int]:
     """
     Return {object: poses the node published} for the objects without ground truth.
 

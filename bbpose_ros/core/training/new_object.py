@@ -267,8 +267,8 @@ def fit_new_rows(network: Network, new_objects: Sequence[str],
                       progress) for run in range(rows.seeds)]
     weight, bias = (torch.stack(part).mean(dim=0) for part in zip(*runs))
     with torch.no_grad():
-        layer.weight[chosen] = weight.detach()
-        layer.bias[chosen] = bias.detach()
+        layer.weight[chosen] = weight
+        layer.bias[chosen] = bias
     return validate(network, batches, TrainingDevice('cpu'))
 
 
