@@ -24,6 +24,7 @@ import pytest
 
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.eval.evaluation import POSE_KEYS
+from bbpose_ros.core.eval.paired import instances_path
 
 pytestmark = pytest.mark.slow   # runs the bbpose CLI as a process
 
@@ -64,6 +65,22 @@ def test_eval_refines_perturbed_ground_truth_sweep(lmo_root, tmp_path):
     assert 'minimum confidence' in result.stdout
     bad = bbpose('eval', '--dataset', lmo_root, '--boxes', 'detector', '--perturb-gt', '5,5')
     assert bad.returncode == 2 and '--perturb-gt needs --boxes gt --rotation gt' in bad.stderr
+
+
+def test_eval_perturbs_the_truth_along_the_viewing_ray(lmo_root, tmp_path):
+    out = tmp_path / 'report.json'
+    result = bbpose('eval', '--dataset', lmo_root, '--boxes', 'gt', '--rotation', 'gt',
+                    '--perturb-gt', '0,60', '--perturb-direction', 'ray', '--no-refine',
+                    '--objects', 'duck,can', '--max-frames', '6', '--json', out)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    assert report['config']['perturb_direction'] == 'ray'
+    # Unrefined, the start is scored: the exact rotation, the translation 60 mm off along
+    # the ray, so the box it projects to stays centred where the truth's is.
+    records = json.loads(instances_path(out).read_text())
+    assert records and all(r['te_mm'] == pytest.approx(60.0) and r['re_deg'] < 1e-3
+                           for r in records)
+    assert report['mean']['proj5px'] > 0.5
 
 
 def test_eval_with_ground_truth_boxes_and_rotations(lmo_root, tmp_path):

@@ -154,3 +154,23 @@ def test_nearest_rotation_projects_onto_so3():
     turned = rot.exp_so3([0.0, 0.0, np.radians(5.5)]) @ MATRICES[0]
     assert rot.rotation_error_deg(turned, 1.003 * MATRICES[0]) < 5.0
     assert rot.rotation_error_deg(turned, rot.nearest_rotation(1.003 * MATRICES[0])) > 5.4
+
+
+@pytest.mark.parametrize('direction', rot.PERTURB_DIRECTIONS)
+def test_perturb_pose_moves_exactly_and_along_the_ray_when_asked(direction):
+    rng = np.random.default_rng(4)
+    translation = np.array([0.1, -0.05, 0.9])
+    moves = []
+    for rotation in MATRICES[:20]:
+        turned, moved = rot.perturb_pose(rotation, translation, 12.0, 0.03, rng, direction)
+        assert rot.rotation_error_deg(turned, rotation) == pytest.approx(12.0)
+        assert np.linalg.norm(moved - translation) == pytest.approx(0.03)
+        moves.append(moved - translation)
+    along = np.array(moves) @ translation / np.linalg.norm(translation) / 0.03
+    if direction == 'ray':      # towards and away from the camera, never sideways
+        np.testing.assert_allclose(np.abs(along), 1.0)
+        assert (along > 0).any() and (along < 0).any()
+    else:
+        assert np.abs(along).max() < 0.999
+    with pytest.raises(InputError, match='perturbation direction'):
+        rot.perturb_pose(MATRICES[0], translation, 1.0, 0.01, rng, 'sideways')

@@ -32,6 +32,7 @@ from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_r
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.paired import instances_path
 from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
 
@@ -72,6 +73,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              "refiner's basin). Repeat it for a sweep: the report is the "
                              "first level's, with every level's means under 'sweep', and "
                              '--plots draws refinement_basin.png')
+    parser.add_argument('--perturb-direction', choices=PERTURB_DIRECTIONS, default='random',
+                        help='how --perturb-gt moves the truth: in a random direction, or '
+                             'along the viewing ray (towards or away from the camera, as a '
+                             "box of the wrong size moves the Bounding Box Equation's "
+                             'translation; default %(default)s)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the --perturb-gt perturbations (default %(default)s)')
     add_objects_argument(parser)
@@ -145,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         level_scores, timings = score_frames(
             frames, pipeline, boxes=args.boxes,
             rotation='gt' if args.rotation == 'gt' else 'estimator', min_visib=args.min_visib,
-            perturb=perturb, seed=args.seed)
+            perturb=perturb, seed=args.seed, perturb_direction=args.perturb_direction)
         level_report = make_report(level_scores, timings, len(frames))
         if level is not None:
             sweep.append({'deg': level[0], 'mm': level[1], 'mean': level_report['mean']})
@@ -168,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
                         'detector_network': getattr(pipeline.detector, 'precision', None),
                         'qnet_network': getattr(pipeline.rotation_estimator, 'precision',
                                                 None),
-                        'perturb_gt_deg_mm': args.perturb_gt, 'seed': args.seed}
+                        'perturb_gt_deg_mm': args.perturb_gt,
+                        'perturb_direction': args.perturb_direction, 'seed': args.seed}
     print(format_report(report))
     for level in report.get('sweep', []):
         mean = level['mean']

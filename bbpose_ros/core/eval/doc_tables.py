@@ -54,6 +54,8 @@ REPORT_COMMANDS = {
     'eval_gt_gt_sweep': f'{_EVAL} --boxes gt --rotation gt ' + ' '.join(
         f'--perturb-gt {level}' for level in ('0,0', '5,10', '10,20', '15,20', '20,20',
                                               '30,20', '45,20')),
+    'eval_gt_gt_ray_sweep': f'{_EVAL} --boxes gt --rotation gt --perturb-direction ray '
+                            + ' '.join(f'--perturb-gt 0,{mm}' for mm in (0, 30, 60, 90, 120)),
     'bench': _BENCH,
     'bench_fp32': f'{_BENCH} --param inference_precision:=fp32',
     'bench_graph': f'{_BENCH} --graph',
@@ -179,6 +181,12 @@ TABLES = {
         'docs/refinement.md', 'eval_gt_gt_sweep', 'sweep',
         Column('start: deg / mm off the truth', ('deg', 'mm'), '{:.0f}'),
         (Column('5 cm / 5 deg', ('mean.cm5deg5',)), Column('ADD(-S)', ('mean.add_s_recall',)),
+         Column('rotation median (deg)', ('mean.re_median_deg',), '{:.1f}'))),
+    'refinement_ray_basin': ListTable(
+        'docs/refinement.md', 'eval_gt_gt_ray_sweep', 'sweep',
+        Column('start: mm off the truth along the ray', ('mm',), '{:.0f}'),
+        (Column('translation median (mm)', ('mean.te_median_mm',), '{:.1f}'),
+         Column('ADD(-S)', ('mean.add_s_recall',)), Column('5 cm / 5 deg', ('mean.cm5deg5',)),
          Column('rotation median (deg)', ('mean.re_median_deg',), '{:.1f}'))),
     'refinement_confidence': ListTable(
         'docs/refinement.md', 'eval_detector', 'confidence',

@@ -273,7 +273,8 @@ def source_summary(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, A
 
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
                  rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True,
-                 perturb: tuple[float, float] | None = None, seed: int = 0
+                 perturb: tuple[float, float] | None = None, seed: int = 0,
+                 perturb_direction: str = 'random'
                  ) -> tuple[dict[str, list[InstanceScore]], list[dict[str, float]]]:
     """
     Run the pipeline over BOP frames and score every counted instance.
@@ -290,6 +291,9 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
             distance in a random direction (seeded), then run the pipeline's refiner on it
             (none: the perturbed pose is scored). Needs boxes and rotation 'gt'.
         seed: seed of the perturbations.
+        perturb_direction: how the translation is moved, ``rotations.PERTURB_DIRECTIONS``:
+            'random' (any direction) or 'ray' (along the viewing ray, as a box of the wrong
+            size moves it).
 
     Returns:
         ({name: [InstanceScore]}, [per-frame stage timings in ms]).
@@ -318,7 +322,8 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
                 result = pipeline.estimate(image, frame.camera, detections, rotations)
             else:
                 result = refine_perturbed(pipeline, image, frame.camera, detections,
-                                          [truths[k] for k in keep], perturb, rng)
+                                          [truths[k] for k in keep], perturb, rng,
+                                          perturb_direction)
         else:
             result = pipeline.estimate(image, frame.camera, detections)
         timings.append(result.timings_ms)
@@ -330,11 +335,12 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
 
 def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: CameraIntrinsics,
                      detections: Sequence[Detection], truths: Sequence[GroundTruthInstance],
-                     perturb: tuple[float, float], rng: np.random.Generator) -> FrameResult:
+                     perturb: tuple[float, float], rng: np.random.Generator,
+                     direction: str = 'random') -> FrameResult:
     """Refine perturbed ground-truth poses with the pipeline's refiner (see score_frames)."""
     timer = StageTimer()
     poses = [PoseEstimate(d, *perturb_pose(t.rotation, t.translation, perturb[0], perturb[1],
-                                           rng), source='given')
+                                           rng, direction), source='given')
              for d, t in zip(detections, truths)]
     if pipeline.refiner is not None and poses:
         masks = choice_masks = None

@@ -25,6 +25,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
+from bbpose_ros.core.errors import InputError
+
 
 def _bilinear_table(terms):
     """(E, 16): entry e = sum of coefficient * a_i b_j over its (coefficient, i, j) terms."""
@@ -200,19 +202,32 @@ def log_so3(rotation: npt.ArrayLike) -> np.ndarray:
     return vectors.reshape(matrices.shape[:-2] + (3,))
 
 
+PERTURB_DIRECTIONS = ('random', 'ray')
+
+
 def perturb_pose(rotation: npt.ArrayLike, translation: npt.ArrayLike, angle_deg: float,
-                 offset_m: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                 offset_m: float, rng: np.random.Generator,
+                 direction: str = 'random') -> tuple[np.ndarray, np.ndarray]:
     """
     Turn a pose by ``angle_deg`` about a random axis, move it ``offset_m`` in a random way.
 
-    Axis and direction are uniform on the sphere: the start of a refinement's basin test.
+    The axis is uniform on the sphere; the move is uniform on the sphere (``direction``
+    'random') or along the viewing ray through the model origin, towards or away from the
+    camera with equal odds ('ray': the error a box of the wrong size gives the Bounding Box
+    Equation): the start of a refinement's basin test.
 
     Returns:
         ((3, 3) rotation, (3,) translation): the rotation error to the given pose is exactly
         ``angle_deg`` and the translation error exactly ``offset_m``.
 
     """
-    axis, direction = rng.normal(size=(2, 3))
+    if direction not in PERTURB_DIRECTIONS:
+        raise InputError(f'perturbation direction must be one of {PERTURB_DIRECTIONS}, got '
+                         f'{direction!r}')
+    axis, step = rng.normal(size=(2, 3))
+    translation = np.asarray(translation, dtype=float)
+    if direction == 'ray':
+        step = translation * rng.choice((-1.0, 1.0))
     turned = exp_so3(axis / np.linalg.norm(axis) * np.deg2rad(angle_deg)) @ np.asarray(rotation)
-    moved = np.asarray(translation, dtype=float) + direction / np.linalg.norm(direction) * offset_m
+    moved = translation + step / np.linalg.norm(step) * offset_m
     return turned, moved
