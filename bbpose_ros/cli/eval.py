@@ -69,7 +69,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         metavar='DEG,MM',
                         help='with --boxes gt --rotation gt: start each pose from the ground '
                              'truth turned DEG degrees about a random axis and moved MM '
-                             'millimetres in a random direction, then refine it (the '
+                             'millimetres (see --perturb-direction), then refine it (the '
                              "refiner's basin). Repeat it for a sweep: the report is the "
                              "first level's, with every level's means under 'sweep', and "
                              '--plots draws refinement_basin.png')

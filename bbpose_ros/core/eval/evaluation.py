@@ -288,7 +288,7 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
         progress: show a progress bar on stderr.
         perturb: (degrees, metres): instead of the Bounding Box Equation, start each pose
             from its ground truth turned by that angle about a random axis and moved by that
-            distance in a random direction (seeded), then run the pipeline's refiner on it
+            distance as ``perturb_direction`` says (seeded), then run the pipeline's refiner on it
             (none: the perturbed pose is scored). Needs boxes and rotation 'gt'.
         seed: seed of the perturbations.
         perturb_direction: how the translation is moved, ``rotations.PERTURB_DIRECTIONS``:
