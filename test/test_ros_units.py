@@ -40,10 +40,10 @@ from bbpose_ros.ros import conversions
 from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
 from bbpose_ros.ros.pairing import LatestSlot, NEWER_PAIRED, Pairing, QUEUE_FULL, StampPairer
-from bbpose_ros.ros.params import (APPLIES, check_value, checked_options, declare_parameters,
-                                   NODE_DEFAULTS,
-                                   parameter_values, PARAMETERS, read_config,
-                                   read_params_file)
+from bbpose_ros.ros.param_specs import APPLIES
+from bbpose_ros.ros.params import check_value, checked_options, declare_parameters
+from bbpose_ros.ros.params import NODE_DEFAULTS, parameter_values, PARAMETERS, read_config
+from bbpose_ros.ros.params import read_params_file
 from bbpose_ros.ros.throttle import KeyedThrottle
 
 SECOND = 1_000_000_000

@@ -28,28 +28,27 @@ generated from the setting's declaration (``options.SETTINGS``: type, default, r
 description), so the node, ``bbpose eval`` and ``bbpose bench`` share them; its value is
 checked by making the PipelineOptions (``NodeConfig.updated`` / ``read_config``). The
 node's own parameters (topics, QoS, TF, files) are declared in the table below and checked
-by ``check_value``. ``config/bbpose.yaml`` documents each one, with these defaults (a test
-holds them equal).
+by ``check_value`` (the row type and the checks: ``param_specs.py``). ``config/bbpose.yaml``
+documents each one, with these defaults (a test holds them equal).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, replace
-import os
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
 from ament_index_python.packages import get_package_share_directory
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 import yaml
 
-from bbpose_ros.core.data.bop import DEFAULT_DATASET
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions, Setting, SETTINGS
+from bbpose_ros.ros.param_specs import check_dataset_dir, check_object_names, check_tf_prefix
+from bbpose_ros.ros.param_specs import check_weights_file, dataset_path, one_of, ParameterSpec
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -57,45 +56,6 @@ if TYPE_CHECKING:
 NODE_NAME = 'bbpose_node'
 RELIABILITY = {'reliable': QoSReliabilityPolicy.RELIABLE,
                'best_effort': QoSReliabilityPolicy.BEST_EFFORT}
-APPLIES = ('start', 'configure', 'pipeline', 'frame')
-
-
-@dataclass(frozen=True)
-class ParameterSpec:
-    """
-    One parameter of the node.
-
-    Attributes:
-        default: the declared default; its type is the parameter's (rclpy refuses others).
-        description: one line for the descriptor (config/bbpose.yaml says more).
-        applies: when the node reads it, one of APPLIES.
-        value_range: (from, to), inclusive, for the descriptor and the check.
-        check: raises InputError saying what is wrong with a value of the right type.
-        option: whether it is a setting of PipelineOptions (checked by making one).
-
-    """
-
-    default: Any
-    description: str
-    applies: str
-    value_range: tuple[float, float] | None = None
-    check: Callable[[Any], None] | None = field(default=None, compare=False)
-    option: bool = False
-
-    @property
-    def descriptor(self) -> ParameterDescriptor:
-        """Return the ParameterDescriptor (read-only for ``start`` parameters)."""
-        descriptor = ParameterDescriptor(description=self.description,
-                                         read_only=self.applies == 'start')
-        if self.value_range is not None and isinstance(self.default, int) \
-                and not isinstance(self.default, bool):
-            descriptor.integer_range = [IntegerRange(from_value=self.value_range[0],
-                                                     to_value=self.value_range[1], step=1)]
-        elif self.value_range is not None:
-            descriptor.floating_point_range = [FloatingPointRange(
-                from_value=float(self.value_range[0]), to_value=float(self.value_range[1]))]
-        return descriptor
-
 
 # The settings the configure transition reads (what runs the networks); the others shape
 # the pipeline and may be set while the node runs.
@@ -113,43 +73,6 @@ def setting_spec(setting: Setting) -> ParameterSpec:
                          value_range=setting.limits, option=True)
 
 
-def _one_of(choices):
-    def check(value):
-        if value not in choices:
-            raise InputError(f'"{value}" is not one of {", ".join(choices)}')
-    return check
-
-
-def _check_objects(names):
-    if not names:
-        raise InputError('give at least one object name')
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        raise InputError(f'{", ".join(repeated)} listed more than once')
-
-
-def _check_weights_file(text):
-    if text and not Path(text).is_file():
-        raise InputError(f'weights file not found: {text}')
-
-
-def _check_tf_prefix(prefix):
-    # tf2 refuses frame ids with a leading slash, and whitespace makes them unusable.
-    if prefix.startswith('/') or any(c.isspace() for c in prefix):
-        raise InputError(f'"{prefix}" starts with "/" or holds whitespace (tf2 frame ids '
-                         f'may not)')
-
-
-def _dataset_path(text):
-    return Path(text or os.environ.get('BBPOSE_DATASET') or DEFAULT_DATASET)
-
-
-def _check_dataset_dir(text):
-    path = _dataset_path(text)
-    if not (path / 'models').is_dir():
-        raise InputError(f'{path} has no models/ folder (BOP meshes and models_info.json)')
-
-
 # The table: name -> ParameterSpec, in the order of config/bbpose.yaml.
 PARAMETERS = {
     'autostart': ParameterSpec(
@@ -158,26 +81,26 @@ PARAMETERS = {
     'objects': ParameterSpec(
         list(LMO_OBJECTS), "Names of the objects to report (the dataset's: "
         "models/models_names.json, else LineMod's by BOP id, e.g. ape); one pose topic each.",
-        'pipeline', check=_check_objects),
+        'pipeline', check=check_object_names),
     'dataset_dir': ParameterSpec(
         '', 'BOP dataset folder with models/ (meshes in mm, models_info.json) and optionally '
         'models_eval/; empty: $BBPOSE_DATASET, else ../shared/datasets/lmo.', 'configure',
-        check=_check_dataset_dir),
+        check=check_dataset_dir),
     'detector_weights': ParameterSpec(
         '', '2D detector weights file (.pt); empty: the weights shipped in bbpose_ros/weights.',
-        'configure', check=_check_weights_file),
+        'configure', check=check_weights_file),
     'qnet_weights': ParameterSpec(
         '', 'Q-Net rotation weights file (.pt); empty: the weights shipped in '
-        'bbpose_ros/weights.', 'configure', check=_check_weights_file),
+        'bbpose_ros/weights.', 'configure', check=check_weights_file),
     'dense_weights': ParameterSpec(
         '', 'Dense correspondence net weights file (.pt), read when pose_source, dense_mask, '
         'box_source or mask_consistency_weight uses it; empty: bbpose_ros/weights/dense.pt.',
         'configure',
-        check=_check_weights_file),
+        check=check_weights_file),
     **{name: setting_spec(setting) for name, setting in SETTINGS.items()},
     'qos_reliability': ParameterSpec(
         'reliable', 'Reliability of the image and camera_info subscriptions: reliable or '
-        'best_effort.', 'configure', check=_one_of(RELIABILITY)),
+        'best_effort.', 'configure', check=one_of(RELIABILITY)),
     'qos_depth': ParameterSpec(
         1, 'History depth (keep-last) of the image and camera_info subscriptions; the node '
         'processes only the newest frame whatever the depth.', 'configure',
@@ -198,7 +121,7 @@ PARAMETERS = {
     'tf_prefix': ParameterSpec(
         '~/', 'Prefix of the TF child frames and Detection3D ids; a leading ~/ stands for the '
         "node's name and a slash (bbpose_node/ape); empty: the bare object names.",
-        'frame', check=_check_tf_prefix),
+        'frame', check=check_tf_prefix),
     'max_image_pixels': ParameterSpec(
         33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
         value_range=(1, 2 ** 31 - 1)),
@@ -328,7 +251,7 @@ def resolve_dataset_dir(text: str) -> Path:
     Empty means $BBPOSE_DATASET, or the ``bbpose`` tools' default ../shared/datasets/lmo.
     """
     check_value('dataset_dir', text)
-    return _dataset_path(text)
+    return dataset_path(text)
 
 
 def read_params_file(path: Path | str, overrides: Iterable[str] = (),
