@@ -201,12 +201,13 @@ def test_detections_and_transforms_of_a_frame(lmo_models):
     assert (tf[2].transform.translation.x, tf[2].transform.translation.z) == (0.2, 1.0)
 
 
-def test_pose_message_uses_ros_quaternion_order():
+def test_pose_messages_use_ros_quaternion_order():
     rotation = quat_wxyz_to_matrix([0.5, 0.5, -0.5, 0.5])
-    message = conversions.pose_to_message(Header(), rotation, [0.1, -0.2, 0.9])
-    q = message.pose.orientation
+    pose = PoseEstimate(Detection('ape', 0.9, np.zeros(4)), rotation, np.array([0.1, -0.2, 0.9]))
+    message, = conversions.poses_to_messages([pose])
+    q = message.orientation
     assert np.allclose(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])), rotation)
-    assert (message.pose.position.x, message.pose.position.z) == (0.1, 0.9)
+    assert (message.position.x, message.position.z) == (0.1, 0.9)
 
 
 def test_diagnostics_round_trip():

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Messages <-> core types: Image, CameraInfo, PoseStamped and MarkerArray.
+Messages <-> core types: Image, PoseStamped and MarkerArray.
 
 Poses are x_cam = R x_model + t with t in metres in the image's optical frame; quaternions
 in messages are in ROS order (x, y, z, w).
@@ -56,12 +56,6 @@ def rgb_to_image(header: Header, image_rgb: npt.ArrayLike) -> Image:
     height, width, encoding, step, data = encode_rgb8(image_rgb)
     return Image(header=header, height=height, width=width, encoding=encoding,
                  is_bigendian=0, step=step, data=data.tobytes())
-
-
-def pose_to_message(header: Header, rotation: npt.ArrayLike,
-                    translation_m: npt.ArrayLike) -> PoseStamped:
-    """geometry_msgs/PoseStamped of x_cam = R x_model + t (metres, ROS (x, y, z, w))."""
-    return PoseStamped(header=header, pose=_pose(_quats_xyzw(rotation), translation_m))
 
 
 def poses_to_messages(poses: Sequence[PoseEstimate]) -> list[Pose]:
