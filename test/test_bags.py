@@ -12,15 +12,23 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""BOP frames -> rosbag2 -> frames again: images bit-exact, intrinsics and poses equal."""
+"""
+BOP frames -> rosbag2 -> frames again: images bit-exact, intrinsics and poses equal.
+
+Recorded raw messages (``write_bag``) come back byte for byte, in any type the installed
+packages define.
+"""
 
 import shutil
 
 import numpy as np
 import pytest
+from rosbags.rosbag2 import Reader
 
+from bbpose_ros.bags import topics
 from bbpose_ros.bags.reader import read_bag_frames
-from bbpose_ros.bags.writer import write_bop_bag
+from bbpose_ros.bags.typestore import TYPESTORE
+from bbpose_ros.bags.writer import write_bag, write_bop_bag
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
@@ -67,3 +75,25 @@ def test_refuses_to_overwrite(lmo_frames, tmp_path):
     (tmp_path / 'bag').mkdir()
     with pytest.raises(InputError, match='already exists'):
         write_bop_bag(lmo_frames[:1], tmp_path / 'bag', progress=False)
+
+
+def test_raw_messages_come_back_and_replace_only_a_bag(tmp_path):
+    pose = topics.pose_message(5, 'cam', np.eye(3), [0.0, 0.0, 1.0])
+    raw = TYPESTORE.serialize_cdr(pose, topics.POSE_TYPE).tobytes()
+    detections = 'vision_msgs/msg/Detection3DArray'     # a type rosbags lacks
+    messages = [('/a/pose', topics.POSE_TYPE, 10, raw), ('/a/pose', topics.POSE_TYPE, 20, raw),
+                ('/detections', detections, 30, b'opaque: written as given')]
+    bag = tmp_path / 'results'
+    assert write_bag(bag, messages[:1]) == 1
+    with pytest.raises(InputError, match='already exists'):
+        write_bag(bag, messages)
+    assert write_bag(bag, messages, replace=True) == 3
+    with Reader(bag) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == {
+            '/a/pose': topics.POSE_TYPE, '/detections': detections}
+        assert [(c.topic, t, bytes(r)) for c, t, r in reader.messages()] == [
+            (topic, time_ns, data) for topic, _, time_ns, data in messages]
+    (tmp_path / 'notes').mkdir()
+    with pytest.raises(InputError, match='is not a bag; not replacing it'):
+        write_bag(tmp_path / 'notes', messages, replace=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['notes', 'results']

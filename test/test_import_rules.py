@@ -16,13 +16,14 @@
 """
 The package's import rules, read from the source (AST): layers point one way.
 
-cli -> bags, ros -> core; the core imports no ROS and nothing of ros/, bags/ or cli/; ros/
-imports nothing of cli/ or bags/; in the core, training may use synth but never the other
-way, and the running node reaches nothing of core/eval, core/training, core/synth or cli
-through any chain of imports; ``bbpose train`` needs no ROS, and no ``bbpose`` command
-imports another (what two share lives in cli/common.py or the core). No module imports
-itself through a chain of others (no circle, lazy and type-checking imports included), and
-no two modules share a file name.
+cli -> bags, ros -> core; the core imports no ROS and nothing of ros/, bags/ or cli/; bags/
+reads and writes bags without ROS, but for its player (which publishes into the graph, and
+which no other module of bags/ reaches); ros/ imports nothing of cli/ or bags/; in the core,
+training may use synth but never the other way, and the running node reaches nothing of
+core/eval, core/training, core/synth or cli through any chain of imports; ``bbpose train``
+needs no ROS, and no ``bbpose`` command imports another (what two share lives in
+cli/common.py or the core). No module imports itself through a chain of others (no circle,
+lazy and type-checking imports included), and no two modules share a file name.
 """
 
 import ast
@@ -33,6 +34,7 @@ import pytest
 from bbpose_ros.cli.main import SUBCOMMANDS
 
 PACKAGE = Path(__file__).parents[1] / 'bbpose_ros'
+PLAYER = 'bbpose_ros.bags.player'
 ROS_ROOTS = ('rclpy', 'rosidl_runtime_py', 'rcl_interfaces', 'builtin_interfaces',
              'ament_index_python', 'launch', 'launch_ros', 'tf2_ros', 'cv_bridge',
              'message_filters')
@@ -171,12 +173,14 @@ def test_no_two_modules_share_a_name():
 def test_core_and_bags_import_no_ros():
     offenders = sorted(f'{module} imports {name}' for module, names in MODULES.items()
                        if _in(module, 'bbpose_ros.core') or _in(module, 'bbpose_ros.bags')
+                       if module != PLAYER
                        for name in names if _is_ros(name))
     assert offenders == []
 
 
-def test_the_node_reaches_no_offline_code():
-    reached, todo = set(), ['bbpose_ros.ros.node']
+def _reached(start):
+    """Return the package's modules that importing ``start`` runs, ``start`` included."""
+    reached, todo = set(), [start]
     while todo:
         module = todo.pop()
         if module not in reached:
@@ -185,6 +189,17 @@ def test_the_node_reaches_no_offline_code():
             parent = module.rpartition('.')[0]
             if parent in MODULES:       # importing a module runs its package's __init__ too
                 todo.append(parent)
+    return reached
+
+
+def test_bag_files_are_read_and_written_without_the_player():
+    assert PLAYER in MODULES
+    assert sorted(module for module in MODULES if _in(module, 'bbpose_ros.bags')
+                  if module != PLAYER and PLAYER in _reached(module)) == []
+
+
+def test_the_node_reaches_no_offline_code():
+    reached = _reached('bbpose_ros.ros.node')
     offline = ('bbpose_ros.core.eval', 'bbpose_ros.core.training', 'bbpose_ros.core.synth',
                'bbpose_ros.cli', 'bbpose_ros.bags')
     assert sorted(m for m in reached if any(_in(m, o) for o in offline)) == []

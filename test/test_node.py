@@ -35,9 +35,9 @@ from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
+from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.cli.graph.player import BagPlayer
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz

@@ -27,9 +27,9 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.cli.graph.replay import Recording
 from bbpose_ros.cli.replay_eval import unscored_poses
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.video import read_video

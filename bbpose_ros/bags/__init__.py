@@ -12,4 +12,9 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Reading and writing rosbag2 files with ``rosbags`` (pure Python, no rclpy)."""
+"""
+rosbag2 files: read and written with ``rosbags`` (pure Python, no rclpy), and played.
+
+reader.py, writer.py, topics.py and typestore.py import no ROS; player.py publishes a
+bag's messages into the ROS graph with rclpy (``bbpose play``, ``replay-eval``).
+"""

@@ -22,6 +22,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from bbpose_ros.bags import topics
+from bbpose_ros.bags.typestore import TYPESTORE
 from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
@@ -68,7 +69,7 @@ def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
             if connection.topic not in (image_topic, camera_info_topic) and \
                     topics.object_of_ground_truth_topic(connection.topic) is None:
                 continue
-            message = topics.TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+            message = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
             stamp = stamp_to_ns(message.header.stamp)
             if connection.topic == image_topic:
                 images[stamp] = message

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from rosbags.typesys import get_typestore, Stores
 
+from bbpose_ros.bags.typestore import TYPESTORE
 from bbpose_ros.core.geometry.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
                                                 wxyz_to_xyzw)
 from bbpose_ros.core.geometry.rotations import xyzw_to_wxyz
@@ -32,8 +32,6 @@ GROUND_TRUTH_PREFIX = '/ground_truth/'
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
-
-TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
 def ground_truth_topic(object_name: str) -> str:

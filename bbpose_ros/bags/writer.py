@@ -12,10 +12,15 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Write BOP frames into a rosbag2 (images, camera info and ground-truth poses)."""
+"""
+Write rosbag2 files: raw CDR messages (``write_bag``), or BOP frames (``write_bop_bag``).
 
-from collections.abc import Sequence
+Every bag is written through ``write_bag``, with the one typestore (``bags.typestore``).
+"""
+
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
+import shutil
 from typing import Any
 
 import numpy as np
@@ -23,6 +28,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from tqdm import tqdm
 
 from bbpose_ros.bags import topics
+from bbpose_ros.bags.typestore import add_missing_types, TYPESTORE
 from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.data.image_encoding import encode_rgb8
 from bbpose_ros.core.errors import InputError
@@ -31,10 +37,12 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
+BagMessage = tuple[str, str, int, bytes]   # topic, type name, log time (ns), raw CDR
+
 
 def camera_info_message(stamp_ns: int, frame_id: str, camera: CameraIntrinsics) -> Any:
     """sensor_msgs/CameraInfo of an undistorted camera: K, P = [K | 0], D = 0, R = I."""
-    types = topics.TYPESTORE.types
+    types = TYPESTORE.types
     roi = types['sensor_msgs/msg/RegionOfInterest'](
         x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return types[topics.CAMERA_INFO_TYPE](
@@ -47,61 +55,87 @@ def camera_info_message(stamp_ns: int, frame_id: str, camera: CameraIntrinsics) 
 def image_message(stamp_ns: int, frame_id: str, image_rgb: np.ndarray) -> Any:
     """sensor_msgs/Image, rgb8, of an (H, W, 3) uint8 array."""
     height, width, encoding, step, data = encode_rgb8(image_rgb)
-    return topics.TYPESTORE.types[topics.IMAGE_TYPE](
+    return TYPESTORE.types[topics.IMAGE_TYPE](
         header=topics.header(stamp_ns, frame_id), height=height, width=width,
         encoding=encoding, is_bigendian=0, step=step, data=data)
+
+
+def write_bag(path: Path | str, messages: Iterable[BagMessage], storage: str = 'mcap',
+              replace: bool = False) -> int:
+    """
+    Write raw CDR messages as a rosbag2 at ``path``, atomically; return how many.
+
+    A topic's connection is made at its first message, with the type that message names
+    (types rosbags lacks are added to the typestore from their installed definitions). The
+    bag is written to a temporary folder beside ``path`` and renamed when complete, so a
+    failure leaves nothing behind. An existing path is an InputError, but with ``replace``
+    an existing bag (a folder with metadata.yaml), which is removed first.
+    """
+    path = Path(path)
+    _check_output(path, storage, replace)
+    if path.exists():
+        shutil.rmtree(path)
+    count = 0
+    with atomic_output(path, keep_name=True) as staging:
+        with Writer(staging, version=9, storage_plugin=STORAGE[storage]) as bag:
+            connections = {}
+            for topic, msgtype, time_ns, raw in messages:
+                if topic not in connections:
+                    add_missing_types([msgtype])
+                    connections[topic] = bag.add_connection(topic, msgtype,
+                                                            typestore=TYPESTORE)
+                bag.write(connections[topic], time_ns, raw)
+                count += 1
+    return count
 
 
 def write_bop_bag(frames: Sequence[BopFrame], out_path: Path | str, rate_hz: float = 10.0,
                   start_stamp_ns: int = 1_000_000_000, frame_id: str = topics.DEFAULT_FRAME_ID,
                   storage: str = 'mcap', min_visib: float = 0.1, progress: bool = True) -> int:
     """
-    Write BOP frames as a rosbag2 at ``out_path``, atomically.
+    Write BOP frames as a rosbag2 at ``out_path``, atomically (``write_bag``).
 
     Frame i is stamped start_stamp_ns + i / rate_hz. Per frame: an rgb8 Image, a CameraInfo
     with the same header, and a PoseStamped (metres) on /ground_truth/<object>/pose for each
-    instance whose visible fraction is at least ``min_visib``. The bag is written to a
-    temporary folder beside ``out_path`` and renamed when complete, so a failure leaves
-    nothing behind. Returns the number of frames written.
+    instance whose visible fraction is at least ``min_visib``. Returns the number of frames
+    written.
     """
     out_path = Path(out_path)
-    if storage not in STORAGE:
-        raise InputError(f'unknown storage "{storage}"; choose one of {", ".join(STORAGE)}')
+    _check_output(out_path, storage, replace=False)
     if rate_hz <= 0:
         raise InputError(f'rate must be positive, got {rate_hz}')
-    if out_path.exists():
-        raise InputError(f'output already exists: {out_path}')
     if not frames:
         raise InputError('no frames to write')
-    with atomic_output(out_path, keep_name=True) as staging:
-        with Writer(staging, version=9, storage_plugin=STORAGE[storage]) as bag:
-            _write_frames(bag, frames, rate_hz, start_stamp_ns, frame_id, min_visib, progress)
+    write_bag(out_path, _bop_messages(frames, rate_hz, start_stamp_ns, frame_id, min_visib,
+                                      progress), storage)
     return len(frames)
 
 
-def _write_frames(writer, frames, rate_hz, start_stamp_ns, frame_id, min_visib, progress):
-    typestore = topics.TYPESTORE
-    image_conn = writer.add_connection(topics.IMAGE_TOPIC, topics.IMAGE_TYPE,
-                                       typestore=typestore)
-    info_conn = writer.add_connection(topics.CAMERA_INFO_TOPIC, topics.CAMERA_INFO_TYPE,
-                                      typestore=typestore)
-    pose_conns = {}
+def _check_output(path: Path, storage: str, replace: bool) -> None:
+    if storage not in STORAGE:
+        raise InputError(f'unknown storage "{storage}"; choose one of {", ".join(STORAGE)}')
+    if path.exists() and not replace:
+        raise InputError(f'output already exists: {path}')
+    if path.exists() and not (path / 'metadata.yaml').is_file():
+        raise InputError(f'{path} exists and is not a bag; not replacing it')
+
+
+def _bop_messages(frames: Sequence[BopFrame], rate_hz: float, start_stamp_ns: int,
+                  frame_id: str, min_visib: float, progress: bool) -> Iterator[BagMessage]:
     for index, frame in enumerate(tqdm(frames, desc='writing bag', unit='frame',
                                        disable=not progress)):
         stamp = start_stamp_ns + int(round(index * 1e9 / rate_hz))
-        image = frame.load_image()
-        writer.write(image_conn, stamp, typestore.serialize_cdr(
-            image_message(stamp, frame_id, image), topics.IMAGE_TYPE))
-        writer.write(info_conn, stamp, typestore.serialize_cdr(
-            camera_info_message(stamp, frame_id, frame.camera), topics.CAMERA_INFO_TYPE))
+        yield _serialized(topics.IMAGE_TOPIC, topics.IMAGE_TYPE, stamp,
+                          image_message(stamp, frame_id, frame.load_image()))
+        yield _serialized(topics.CAMERA_INFO_TOPIC, topics.CAMERA_INFO_TYPE, stamp,
+                          camera_info_message(stamp, frame_id, frame.camera))
         for instance in frame.instances:
-            if instance.visib_fract < min_visib:
-                continue
-            topic = topics.ground_truth_topic(instance.object_name)
-            if topic not in pose_conns:
-                pose_conns[topic] = writer.add_connection(topic, topics.POSE_TYPE,
-                                                          typestore=typestore)
-            message = topics.pose_message(stamp, frame_id, instance.rotation,
-                                          instance.translation)
-            writer.write(pose_conns[topic], stamp,
-                         typestore.serialize_cdr(message, topics.POSE_TYPE))
+            if instance.visib_fract >= min_visib:
+                yield _serialized(topics.ground_truth_topic(instance.object_name),
+                                  topics.POSE_TYPE, stamp,
+                                  topics.pose_message(stamp, frame_id, instance.rotation,
+                                                      instance.translation))
+
+
+def _serialized(topic: str, msgtype: str, stamp_ns: int, message: Any) -> BagMessage:
+    return topic, msgtype, stamp_ns, TYPESTORE.serialize_cdr(message, msgtype).tobytes()

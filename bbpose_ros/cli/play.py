@@ -22,7 +22,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from bbpose_ros.cli.graph.player import BagPlayer
+from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.core.errors import InputError
 
 ACK_TIMEOUT_S = 5.0   # reliable messages still in flight when the bag ends

@@ -34,18 +34,19 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from tqdm import tqdm
 
+from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.bags.reader import BagFrame, read_bag_frames
-from bbpose_ros.cli.graph.player import BagPlayer
-from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder, Recording
+from bbpose_ros.bags.writer import write_bag
+from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_lockstep, use_large_image_profile
-from bbpose_ros.cli.graph.replay import write_results_bag
 from bbpose_ros.core import viz
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
 from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
-from bbpose_ros.core.eval.recorded_poses import recording_report, score_recording
+from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
+from bbpose_ros.core.eval.recorded_poses import score_recording
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.video import check_video_path, write_video
 from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
@@ -165,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'bag {args.bag} has no frames or a frame without camera_info')
     recording = record(args, list(models), len(frames), args.param)
     bag_path = results_bag_path(args.json)
-    write_results_bag(bag_path, recording.messages)
+    write_bag(bag_path, recording.messages, replace=True)
     scores = score_recording(frames, recording.poses, models)
     report = recording_report(recording, scores,
                               score_recording(frames, recording.detections, models))

@@ -13,4 +13,9 @@
 # limitations under the License.
 
 
-"""ROS graph helpers of the command-line tools: bag player, node replay, graph benchmark."""
+"""
+What the commands run against a live ``bbpose_node`` (the bag tools live in ``bags/``).
+
+replay.py: the node as a child process, its outputs recorded, a bag replayed in lockstep
+(``replay-eval``); graph_bench.py: frames at a fixed rate (``bench --graph``).
+"""

@@ -41,13 +41,15 @@ from sensor_msgs.msg import CameraInfo, Image
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.bags import topics
+from bbpose_ros.bags.player import PLAY_QOS
+from bbpose_ros.bags.typestore import TYPESTORE
 from bbpose_ros.bags.writer import camera_info_message, image_message
-from bbpose_ros.cli.graph.player import PLAY_QOS
-from bbpose_ros.cli.graph.replay import DIAGNOSTICS_TIMEOUT_S, NodeProcess, Recorder, Recording
+from bbpose_ros.cli.graph.replay import DIAGNOSTICS_TIMEOUT_S, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import use_large_image_profile
 from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import sample_process
+from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.params import NODE_NAME
 
@@ -68,7 +70,7 @@ def camera_messages(frames: Iterable[BopFrame]) -> list[tuple[Image, CameraInfo]
 
 def _to_rclpy(message, msgtype, cls):
     """Turn a rosbags message into the rclpy message of class ``cls`` through its CDR bytes."""
-    return deserialize_message(bytes(topics.TYPESTORE.serialize_cdr(message, msgtype)), cls)
+    return deserialize_message(bytes(TYPESTORE.serialize_cdr(message, msgtype)), cls)
 
 
 class CameraPublisher:

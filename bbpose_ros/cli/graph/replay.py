@@ -22,35 +22,29 @@ publishes one per processed frame, after the frame's poses).
 """
 
 from collections.abc import Callable, Iterable, MutableMapping, Sequence
-from dataclasses import dataclass, field
 import os
 from pathlib import Path
-import shutil
 import signal
 import subprocess
 import sys
 import time
 from typing import IO
 
-from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
-from rosbags.rosbag2 import Writer
-from rosbags.typesys import get_types_from_msg, get_typestore, Stores
-from rosbags.typesys.store import Typestore
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
 from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.bags import topics
-from bbpose_ros.bags.writer import STORAGE
-from bbpose_ros.cli.graph.player import BagPlayer
+from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
 from bbpose_ros.ros.params import NODE_NAME, package_config_file
@@ -107,36 +101,6 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
         return self.process.wait()
-
-
-@dataclass
-class Recording:
-    """
-    What the node answered, by image stamp (ns); times are time.perf_counter() seconds.
-
-    Attributes:
-        published_s: {stamp: when the image was published}.
-        answered_s: {stamp: when its MarkerArray arrived}.
-        poses: {stamp: [(object name, rotation (3, 3), translation (3,) metres)]}.
-        pose_received_s: {stamp: when its last PoseStamped arrived}.
-        detections: {stamp: [(class id, rotation (3, 3), translation (3,) metres)]} of its
-            Detection3DArray (an empty list: an array without detections).
-        transforms: {stamp: number of /tf transforms}.
-        timings_ms: the node's stage latencies from its last diagnostics.
-        counts: the node's frame counters from its last diagnostics.
-        messages: [(topic, type name, receive time ns, raw CDR)] for the results bag.
-
-    """
-
-    published_s: dict = field(default_factory=dict)
-    answered_s: dict = field(default_factory=dict)
-    poses: dict = field(default_factory=dict)
-    pose_received_s: dict = field(default_factory=dict)
-    detections: dict = field(default_factory=dict)
-    transforms: dict = field(default_factory=dict)
-    timings_ms: dict = field(default_factory=dict)
-    counts: dict = field(default_factory=dict)
-    messages: list = field(default_factory=list)
 
 
 class Recorder:
@@ -256,63 +220,3 @@ def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
 def _wait_answer(recorder, stamp, timeout_s, process):
     if stamp is not None:
         recorder.spin_until(lambda: stamp in recorder.recording.answered_s, timeout_s, process)
-
-
-def write_results_bag(path: Path | str, messages: Iterable[tuple[str, str, int, bytes]],
-                      storage: str = 'mcap') -> None:
-    """
-    Write recorded (topic, type, time ns, raw CDR) messages as a rosbag2 at ``path``.
-
-    An existing bag at ``path`` (a folder with metadata.yaml) is replaced; any other
-    existing path is an InputError.
-    """
-    path = Path(path)
-    if path.exists():
-        if not (path / 'metadata.yaml').is_file():
-            raise InputError(f'{path} exists and is not a bag; not replacing it')
-        shutil.rmtree(path)
-    typestore = typestore_of({msgtype for _, msgtype, _, _ in messages})
-    with Writer(path, version=9, storage_plugin=STORAGE[storage]) as writer:
-        connections = {}
-        for topic, msgtype, time_ns, raw in messages:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msgtype,
-                                                           typestore=typestore)
-            writer.write(connections[topic], time_ns, raw)
-
-
-def typestore_of(msgtypes: Iterable[str]) -> Typestore:
-    """
-    Return rosbags' Jazzy typestore, plus the packages of ``msgtypes`` that it lacks.
-
-    rosbags knows no vision_msgs: each missing package's message definitions are read from
-    its installed share/<package>/msg/*.msg (``share_directory``).
-    """
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    missing = {name.split('/')[0] for name in msgtypes if name not in typestore.types}
-    definitions = {}
-    for package in sorted(missing):
-        for path in sorted((share_directory(package) / 'msg').glob('*.msg')):
-            definitions.update(get_types_from_msg(path.read_text(),
-                                                  f'{package}/msg/{path.stem}'))
-    typestore.register(definitions)
-    return typestore
-
-
-def share_directory(package: str) -> Path:
-    """
-    Return an installed package's share/<package> folder.
-
-    It is found in the ament index of $AMENT_PREFIX_PATH (a sourced ROS install, or the
-    Makefile's venv), else, without that variable, in the prefix this Python runs from
-    (``sys.prefix``: the venv's own install), so no tool needs the Makefile's environment.
-    """
-    try:
-        return Path(get_package_share_directory(package))
-    except OSError:    # AMENT_PREFIX_PATH is not set or empty
-        prefix = Path(sys.prefix)
-        if (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' /
-                package).is_file():
-            return prefix / 'share' / package
-        raise InputError(f'ROS package {package} not found: AMENT_PREFIX_PATH is not set '
-                         f'and {prefix} has no share/{package} (source a ROS install)') from None

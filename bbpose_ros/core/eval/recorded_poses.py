@@ -17,13 +17,14 @@ Scoring a running node's recorded poses against a bag's ground truth (``replay-e
 
 The node publishes poses, not its detector's boxes: ground-truth and estimated poses are
 matched through the projection of the object's mesh at each pose, then scored as ``bbpose
-eval`` scores (``evaluation.score_frame``). A frame is a ``bags.reader.BagFrame`` (its
-``stamp_ns``, ``camera`` and ``ground_truth``), a recording a ``cli.graph.replay.Recording``
-(what the node answered, by image stamp).
+eval`` scores (``evaluation.score_frame``). A frame is any ``GroundTruthFrame`` (a
+``bags.reader.BagFrame``); a ``Recording`` holds what the node answered, by image stamp
+(``cli.graph.replay.Recorder`` fills it).
 """
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -38,7 +39,55 @@ from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 RecordedPose = tuple[str, np.ndarray, np.ndarray]   # object name, rotation (3, 3), t (3,) m
 
 
-def ground_truth_instances(frame: Any,
+class GroundTruthFrame(Protocol):
+    """
+    A recorded frame's ground truth, as a bag gives it (``bags.reader.BagFrame``).
+
+    Attributes:
+        stamp_ns: header stamp of the image, nanoseconds.
+        camera: intrinsics of the image (None: the bag had no CameraInfo; such a frame
+            cannot be scored).
+        ground_truth: {object name: [(rotation (3, 3), translation (3,) metres), ...]}.
+
+    """
+
+    stamp_ns: int
+    camera: CameraIntrinsics | None
+    ground_truth: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]]
+
+
+@dataclass
+class Recording:
+    """
+    What the node answered, by image stamp (ns); times are time.perf_counter() seconds.
+
+    Attributes:
+        published_s: {stamp: when the image was published}.
+        answered_s: {stamp: when its MarkerArray arrived}.
+        poses: {stamp: [(object name, rotation (3, 3), translation (3,) metres)]}.
+        pose_received_s: {stamp: when its last PoseStamped arrived}.
+        detections: {stamp: [(class id, rotation (3, 3), translation (3,) metres)]} of its
+            Detection3DArray (an empty list: an array without detections).
+        transforms: {stamp: number of /tf transforms}.
+        timings_ms: the node's stage latencies from its last diagnostics:
+            {stage: {'median', 'p95'}}.
+        counts: the node's frame counters from its last diagnostics.
+        messages: [(topic, type name, receive time ns, raw CDR)] for the results bag.
+
+    """
+
+    published_s: dict[int, float] = field(default_factory=dict)
+    answered_s: dict[int, float] = field(default_factory=dict)
+    poses: dict[int, list[RecordedPose]] = field(default_factory=dict)
+    pose_received_s: dict[int, float] = field(default_factory=dict)
+    detections: dict[int, list[RecordedPose]] = field(default_factory=dict)
+    transforms: dict[int, int] = field(default_factory=dict)
+    timings_ms: dict[str, dict[str, float]] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    messages: list[tuple[str, str, int, bytes]] = field(default_factory=list)
+
+
+def ground_truth_instances(frame: GroundTruthFrame,
                            models: Mapping[str, ObjectModel]) -> list[GroundTruthInstance]:
     """Make GroundTruthInstances of a BagFrame's ground truth (configured objects only)."""
     instances = []
@@ -59,7 +108,8 @@ def node_estimates(entries: Sequence[RecordedPose], models: Mapping[str, ObjectM
             for name, rotation, translation in entries]
 
 
-def score_recording(frames: Sequence[Any], poses: Mapping[int, Sequence[RecordedPose]],
+def score_recording(frames: Sequence[GroundTruthFrame],
+                    poses: Mapping[int, Sequence[RecordedPose]],
                     models: Mapping[str, ObjectModel]) -> dict[str, list[InstanceScore]]:
     """
     Score the node's poses per frame; returns {object name: [InstanceScore]}.
@@ -76,7 +126,7 @@ def score_recording(frames: Sequence[Any], poses: Mapping[int, Sequence[Recorded
     return scores
 
 
-def latencies_ms(recording: Any) -> list[dict[str, float]]:
+def latencies_ms(recording: Recording) -> list[dict[str, float]]:
     """
     Return per-frame {stage: ms} of the graph round trip, from the image's publication.
 
@@ -92,7 +142,7 @@ def latencies_ms(recording: Any) -> list[dict[str, float]]:
     return latencies
 
 
-def recording_report(recording: Any, scores: Mapping[str, Sequence[InstanceScore]],
+def recording_report(recording: Recording, scores: Mapping[str, Sequence[InstanceScore]],
                      detection_scores: Mapping[str, Sequence[InstanceScore]],
                      ) -> dict[str, Any]:
     """
