@@ -69,19 +69,3 @@ def check_video_path(path: Path | str) -> Path:
     if path.suffix.lower() != '.mp4':
         raise InputError(f'video {path}: give a file name ending in .mp4')
     return path
-
-
-def read_video(path: Path | str) -> list[np.ndarray]:
-    """Decode every frame of a video: [(H, W, 3) uint8 RGB]; InputError if unreadable."""
-    capture = cv2.VideoCapture(str(path))
-    try:
-        if not capture.isOpened():
-            raise InputError(f'video {path}: OpenCV cannot open it')
-        frames = []
-        while True:
-            ok, image = capture.read()
-            if not ok:
-                return frames
-            frames.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
-    finally:
-        capture.release()

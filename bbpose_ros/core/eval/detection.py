@@ -34,14 +34,12 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from tqdm import tqdm
 
 from bbpose_ros.core.eval.evaluation import DETECTION_IOU, match_by_score, mean_over_objects
 from bbpose_ros.core.eval.tables import format_object_table
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
-    from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
     from bbpose_ros.core.pipeline.poses import Detection
 
 VISIB_STRICT = 0.3
@@ -68,22 +66,6 @@ def average_precision(scores: npt.ArrayLike, hits: npt.ArrayLike, positives: int
     recall = np.concatenate([[0.0], recall, [recall[-1] if len(recall) else 0.0]])
     precision = np.maximum.accumulate(precision[::-1])[::-1]
     return float(np.sum((recall[1:] - recall[:-1]) * precision[1:]))
-
-
-def evaluate_detections(frames: Sequence[BopFrame], pipeline: PosePipeline,
-                        min_visib: float = 0.1, progress: bool = True) -> dict[str, Any]:
-    """
-    Run ``pipeline.detector`` on BopFrames and score it (see ``score_detections``).
-
-    Returns:
-        {'detection': {name: {'n', 'recall_iou50', 'ap50', 'n_visib30',
-        'recall_iou50_visib30'}}, 'mean': {same keys but the counts, averaged over objects}}.
-
-    """
-    detections = [pipeline.detector(frame.load_image())
-                  for frame in tqdm(frames, desc='detecting', unit='frame',
-                                    disable=not progress)]
-    return score_detections(frames, detections, list(pipeline.models), min_visib)
 
 
 def score_detections(frames: Sequence[BopFrame], detections: Sequence[Sequence[Detection]],

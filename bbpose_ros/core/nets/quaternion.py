@@ -13,10 +13,10 @@
 # limitations under the License.
 
 """
-The paper's q-normalization layer and Dot Product Loss, and extensions of the loss.
+The paper's q-normalization layer and Dot Product Loss, extended to symmetries and hypotheses.
 
-Extensions: the best of a symmetric object's equivalent ground truths, and winner-takes-all
-over several hypotheses.
+The Dot Product Loss is taken against the best of a symmetric object's equivalent ground
+truths (one candidate: the paper's loss), and winner-takes-all over several hypotheses.
 
 Quaternions here are (w, x, y, z) = (q0, q1, q2, q3), the paper's order, along the last
 axis of (B, 4) or (B, H, 4) tensors.
@@ -45,15 +45,10 @@ class QNormalization(nn.Module):
         return raw / raw.norm(dim=-1, keepdim=True).clamp_min(self.eps)
 
 
-def dot_product_loss(q_pred: torch.Tensor, q_true: torch.Tensor) -> torch.Tensor:
-    """Per-sample Dot Product Loss (1 - q_pred . q_true) / 2 of (B, 4) tensors -> (B,)."""
-    return 0.5 * (1.0 - (q_pred * q_true).sum(dim=-1))
-
-
 def symmetric_dot_product_loss(q_pred: torch.Tensor, q_candidates: torch.Tensor,
                                valid: torch.Tensor) -> torch.Tensor:
     """
-    Dot Product Loss against the best of several equivalent ground truths.
+    Dot Product Loss (1 - q_pred . q) / 2 against the best of several equivalent ground truths.
 
     Args:
         q_pred: (B, 4) predicted quaternions (wxyz).
