@@ -24,7 +24,6 @@ are cached in a folder, in files named after a digest of the mesh.
 """
 
 from dataclasses import dataclass
-import hashlib
 import os
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy.typing as npt
 import trimesh
 
 from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.fingerprints import sha256_of_arrays
 
 # Stable poses less likely than this are left out (slivers of the hull).
 MIN_PROBABILITY = 0.01
@@ -104,7 +104,7 @@ def load_stable_poses(name: str, vertices: npt.ArrayLike, faces: npt.ArrayLike,
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
-    digest = hashlib.sha1(vertices.tobytes() + faces.tobytes()).hexdigest()[:16]
+    digest = sha256_of_arrays(vertices, faces)[:16]
     path = Path(cache_dir if cache_dir is not None else default_cache_dir()) / \
         f'{name}-{digest}.npz'
     if path.is_file():
