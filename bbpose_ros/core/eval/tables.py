@@ -18,12 +18,13 @@
 import math
 from typing import Mapping, Sequence
 
-# (key in the row dict, column title, format); '{:d}' columns print as integers.
-Column = tuple[str, str, str]
+# (key in the row dict, column title, format); '{:d}' columns print as integers. The
+# Markdown tables of the docs have columns of their own (report_tables.Column).
+ObjectTableColumn = tuple[str, str, str]
 
 
-def format_object_table(rows: Mapping[str, Mapping], mean: Mapping, columns: Sequence[Column],
-                        width: int) -> str:
+def format_object_table(rows: Mapping[str, Mapping], mean: Mapping,
+                        columns: Sequence[ObjectTableColumn], width: int) -> str:
     """
     Format one line per object and a final 'mean' line under a rule.
 
