@@ -40,7 +40,7 @@ from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 from bbpose_ros.core.training.dense_training import (canonical_symmetry, dense_loss,
                                                      DenseBatches, DenseTrainSettings,
                                                      symmetric_coordinates)
-from bbpose_ros.core.training.runs import train_dense
+from bbpose_ros.core.training.runs import train_dense, TrainingRun
 
 pytestmark = pytest.mark.slow   # renders with OpenGL and trains
 
@@ -223,20 +223,20 @@ def test_a_dense_run_can_start_from_a_trained_net(dense_scenes, lmo_models, tmp_
     config = DenseConfig(TARGETS, crop_size=32, channels=16)
     models = {n: lmo_models[n] for n in TARGETS}
     settings = DenseTrainSettings(batch=2, lr=1e-12, val_fraction=0.34, min_visib=0.0,
-                                  augment_style='strong')
+                                  augment='strong')
     torch.manual_seed(1)
     trained = DenseNet(config)
-    tuned = train_dense(cache, models, config, settings, tmp_path / 'run', 1, threads=1,
-                        progress=False, init=trained)
+    tuned = train_dense(cache, models, config, settings,
+                        TrainingRun(tmp_path / 'run', 1, threads=1, progress=False), init=trained)
     # One step at a vanishing rate: the run holds the given weights, not ImageNet's.
     for (name, start), end in zip(trained.state_dict().items(), tuned.state_dict().values()):
         if start.is_floating_point() and 'running' not in name:
             assert torch.allclose(start, end, atol=1e-6), name
     saved = torch.load(tmp_path / 'run' / 'dense.pt', weights_only=True)['metadata']
-    assert saved['training']['settings']['augment_style'] == 'strong'
+    assert saved['training']['settings']['augment'] == 'strong'
     with pytest.raises(InputError, match='network to start from does not fit'):
         train_dense(cache, models, DenseConfig(TARGETS, crop_size=32, channels=32), settings,
-                    tmp_path / 'other', 1, threads=1, progress=False, init=trained)
+                    TrainingRun(tmp_path / 'other', 1, threads=1, progress=False), init=trained)
 
 
 def test_dense_net_selects_its_class_and_the_loss_reaches_zero_at_the_target():

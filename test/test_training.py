@@ -35,7 +35,7 @@ from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import (inplane_deg, qnet_loss, QNetBatches,
                                                     QNetTrainSettings)
-from bbpose_ros.core.training.runs import parameter_groups, train_detector
+from bbpose_ros.core.training.runs import parameter_groups, train_detector, TrainingRun
 from bbpose_ros.core.training.verifier_training import (candidate_targets, CandidateCrops,
                                                         verifier_step, verifier_validation,
                                                         VerifierBatches, VerifierTrainSettings)
@@ -236,7 +236,7 @@ def test_candidate_targets_lead_to_the_true_box():
 def test_tiny_verifier_run_lowers_the_loss():
     _, network, settings, mined = _mined()
     batches = VerifierBatches(mined, settings, 0)
-    settings.augment = 0.0
+    settings.augment_strength = 0.0
     optimizer = torch.optim.Adam(network.verifier.parameters(), 3e-3)
     network.verifier.train()
     losses = [verifier_step(network.verifier, optimizer, batches, CPU) for _ in range(40)]
@@ -388,10 +388,11 @@ def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
     torch.manual_seed(1)
     trained = CenterBoxNet(DetectorConfig(OBJECTS))
     settings = DetectorTrainSettings(batch=2, lr=1e-12, val_fraction=0.25)
-    tuned = train_detector(cache, DetectorConfig(OBJECTS), settings, tmp_path / 'run', 1,
-                           threads=1, progress=False, init=trained)
-    fresh = train_detector(cache, DetectorConfig(OBJECTS), settings, tmp_path / 'other', 1,
-                           threads=1, progress=False)
+    tuned = train_detector(cache, DetectorConfig(OBJECTS), settings,
+                           TrainingRun(tmp_path / 'run', 1, threads=1, progress=False),
+                           init=trained)
+    fresh = train_detector(cache, DetectorConfig(OBJECTS), settings,
+                           TrainingRun(tmp_path / 'other', 1, threads=1, progress=False))
     # One step at a vanishing rate: the run holds the given weights, not new random ones.
     for (name, start), end, other in zip(trained.state_dict().items(),
                                          tuned.state_dict().values(),
@@ -401,8 +402,9 @@ def test_a_detector_run_can_start_from_a_trained_detector(tmp_path):
     assert any(not torch.allclose(a, b) for a, b in zip(trained.parameters(),
                                                         fresh.parameters()))
     with pytest.raises(InputError, match='network to start from does not fit'):
-        train_detector(cache, DetectorConfig(OBJECTS[:4]), settings, tmp_path / 'third', 1,
-                       threads=1, progress=False, init=trained)
+        train_detector(cache, DetectorConfig(OBJECTS[:4]), settings,
+                       TrainingRun(tmp_path / 'third', 1, threads=1, progress=False),
+                       init=trained)
 
 
 @pytest.mark.parametrize('stage', ['render', 'render-crops'])

@@ -12,12 +12,21 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The options the ``bbpose train`` stages share, and what their values turn into."""
+"""
+The options the ``bbpose train`` stages share, and what their values turn into.
+
+A stage's training settings (``core/training/settings.py``) become its options here
+(``add_settings_options``): each setting ``name`` is ``--name-with-dashes`` with its type,
+range, choices and description (a bool: ``--name`` / ``--no-name``), and
+``settings_from`` makes the stage's settings of the options given.
+"""
+
+from __future__ import annotations
 
 import argparse
 import os
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TYPE_CHECKING, TypeVar
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_objects_argument, float_pair,
                                    with_inplane_range)
@@ -25,13 +34,16 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
 from bbpose_ros.core.synth.table_config import TableConfig
-from bbpose_ros.core.training.augment import AUGMENT_STYLES
 from bbpose_ros.core.training.device import DEVICES
+from bbpose_ros.core.training.settings import declared, QNetTrainSettings, TrainSettings
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.training.runs import TrainingRun
 
 QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
 
-Settings = TypeVar('Settings')
+Settings = TypeVar('Settings', bound=TrainSettings)
 
 
 def add_common_options(parser: argparse.ArgumentParser) -> None:
@@ -45,7 +57,7 @@ def add_common_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_budget_options(parser: argparse.ArgumentParser, steps: int = 20000) -> None:
-    """Add a training run's folder, length, checkpoints, batch, learning rate and device."""
+    """Add a training run's folder, length, checkpoints, export, cache shards and device."""
     parser.add_argument('--run-dir', type=Path, required=True,
                         help='run folder: checkpoint (resumed), logs, plot, weights')
     parser.add_argument('--steps', type=int, default=steps,
@@ -55,8 +67,6 @@ def add_budget_options(parser: argparse.ArgumentParser, steps: int = 20000) -> N
     parser.add_argument('--every', type=int, default=500, help='steps between checkpoints')
     parser.add_argument('--export', type=Path, default=None,
                         help='also copy the weight file here at every checkpoint')
-    parser.add_argument('--batch', type=int, default=None, help='batch size')
-    parser.add_argument('--lr', type=float, default=None, help='peak learning rate')
     parser.add_argument('--max-shards', type=int, default=None,
                         help='use only the first N cache shards')
     parser.add_argument('--device', choices=DEVICES, default=None,
@@ -81,13 +91,60 @@ def add_crop_options(parser: argparse.ArgumentParser) -> None:
                         help='box jitter: per-side error / box size')
 
 
-def add_augment_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--augment``: the style of the batches' photometric augmentation."""
-    parser.add_argument('--augment', choices=AUGMENT_STYLES, default='basic',
-                        help="photometric augmentation of the training batches: 'basic' "
-                             "(brightness, contrast, colour gains, noise) or 'strong' (also "
-                             'blur, sharpening, saturation, grey, JPEG, as CosyPose and '
-                             'GDR-Net train; default %(default)s)')
+def add_settings_options(parser: argparse.ArgumentParser, settings_class: type) -> None:
+    """
+    Add one option per setting of ``settings_class`` (a stage's TrainSettings class).
+
+    Each defaults to None: not given, the setting keeps the stage's default (in the help);
+    ``settings_from`` makes the settings of those given.
+    """
+    group = parser.add_argument_group('training settings (recorded in the weight file)')
+    for name, setting in declared(settings_class).items():
+        text = f'{setting.description} (default {_spelled(setting.default)})'
+        text = text.replace('%', '%%')
+        flag = f'--{name.replace("_", "-")}'
+        if setting.kind is bool:
+            group.add_argument(flag, dest=name, default=None,
+                               action=argparse.BooleanOptionalAction, help=text)
+        elif setting.kind is tuple:
+            group.add_argument(flag, dest=name, default=None, type=int_tuple,
+                               metavar=setting.metavar, help=text)
+        else:
+            group.add_argument(flag, dest=name, default=None, type=setting.kind,
+                               choices=setting.choices, help=text)
+
+
+def _spelled(value: Any) -> str:
+    """Spell a setting's value as its option takes it: 0.001, true, 192,160, none."""
+    if value is None or isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, tuple):
+        return ','.join(map(str, value))
+    return f'{value:g}' if isinstance(value, float) else str(value)
+
+
+def settings_from(args: argparse.Namespace, settings_class: type[Settings],
+                  **given: Any) -> Settings:
+    """
+    Return the ``settings_class`` of the settings options given, and ``given`` ({name: value}).
+
+    Raises InputError '--option-name: reason' for a value it does not take.
+    """
+    values = {name: getattr(args, name) for name in declared(settings_class)
+              if getattr(args, name, None) is not None}
+    try:
+        return settings_class(**{**values, **given})
+    except InputError as err:      # 'name: reason'
+        name, _, reason = str(err).partition(': ')
+        raise InputError(f'--{name.replace("_", "-")}: {reason}') from err
+
+
+def training_run(args: argparse.Namespace) -> TrainingRun:
+    """Return the TrainingRun of the budget options, ``--seed`` and ``--threads``."""
+    from bbpose_ros.core.training.device import training_device
+    from bbpose_ros.core.training.runs import TrainingRun
+    return TrainingRun(args.run_dir, args.steps, seconds(args), args.seed, args.threads,
+                       args.export, args.every, device=training_device(args.device))
 
 
 def add_init_option(parser: argparse.ArgumentParser) -> None:
@@ -97,14 +154,11 @@ def add_init_option(parser: argparse.ArgumentParser) -> None:
                              'architecture instead of ImageNet: fine-tuning')
 
 
-def add_backbone_options(parser: argparse.ArgumentParser) -> None:
-    """Add ``--backbone`` and ``--trunk-lr-scale``."""
+def add_backbone_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--backbone``: an ImageNet trunk ('lite0') or the plain conv stack."""
     parser.add_argument('--backbone', choices=BACKBONES, default='scratch',
                         help="'lite0': EfficientNet-Lite0 from ImageNet with a small head; "
                              "'scratch': the plain conv stack (default %(default)s)")
-    parser.add_argument('--trunk-lr-scale', type=float, default=None,
-                        help="the 'lite0' trunk's learning rate / the head's (0 freezes it; "
-                             'default 0.1)')
 
 
 def add_backgrounds_option(parser: argparse.ArgumentParser) -> None:
@@ -136,18 +190,12 @@ def add_table_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_qnet_options(parser: argparse.ArgumentParser) -> None:
-    """Add Q-Net's architecture, crop jitter, caches, augmentation and validation options."""
+    """Add Q-Net's architecture, caches, validation and training settings options."""
     parser.add_argument('--crop-size', type=int, default=48, help='crop side (paper: 48)')
     parser.add_argument('--rotation-target', choices=('egocentric', 'allocentric'),
                         default='egocentric', help='regressed rotation (paper: egocentric)')
     parser.add_argument('--sharing', choices=('shared', 'per_object'), default='shared',
                         help='one trunk with per-object heads, or one network per object')
-    parser.add_argument('--box-sigma', type=float, default=None,
-                        help='crop jitter: per-side box error / box size (default 0.05)')
-    parser.add_argument('--box-sigma-from', type=Path, default=None,
-                        help='a detector weight file: use its measured side_sigma')
-    parser.add_argument('--sign-invariant', action='store_true',
-                        help='loss (1 - |q.q_gt|) / 2 instead of the hemisphere rule alone')
     parser.add_argument('--channels', type=int_tuple, default=QNET_CHANNELS,
                         help='widths of the conv + max-pool stages, comma separated '
                              '(default %(default)s)')
@@ -157,15 +205,14 @@ def add_qnet_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--hypotheses', type=int, default=1,
                         help='quaternions per head, trained winner-takes-all, the best-scored '
                              'one is the output (paper: 1)')
-    parser.add_argument('--max-inplane-deg', type=float, default=None,
-                        help='train only on crops rolled at most this much about the optical '
-                             'axis (an upright-object prior; default: all)')
+    parser.add_argument('--box-sigma-from', type=Path, default=None,
+                        help='a detector weight file: its measured side_sigma is --box-sigma')
     add_extra_cache_option(parser, 'crop')
-    add_backbone_options(parser)
-    add_augment_option(parser)
+    add_backbone_option(parser)
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
+    add_settings_options(parser, QNetTrainSettings)
 
 
 def add_extra_cache_option(parser: argparse.ArgumentParser, kind: str) -> None:
@@ -211,20 +258,6 @@ def check_input_size(args: argparse.Namespace) -> None:
     if len(args.input_size) != 2 or any(side <= 0 or side % 16 for side in args.input_size):
         raise InputError(f'--input-size must be W,H in positive multiples of 16, '
                          f'got {args.input_size}')
-
-
-def training_settings(settings: Settings, args: argparse.Namespace) -> Settings:
-    """Return ``settings`` (a stage's train settings) with the options given set on it."""
-    if getattr(args, 'trunk_lr_scale', None) is not None and args.trunk_lr_scale < 0:
-        raise InputError(f'--trunk-lr-scale must be >= 0 (0 freezes the trunk), '
-                         f'got {args.trunk_lr_scale}')
-    if getattr(args, 'augment', None) is not None:
-        settings.augment_style = args.augment
-    for name in ('batch', 'lr', 'trunk_lr_scale', 'train_crop', 'coordinate_weight',
-                 'frozen_blocks'):
-        if getattr(args, name, None) is not None:
-            setattr(settings, name, getattr(args, name))
-    return settings
 
 
 def seconds(args: argparse.Namespace) -> float | None:

@@ -21,9 +21,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bbpose_ros.cli.train.arguments import training_settings
+from bbpose_ros.cli.train.arguments import settings_from
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.training.device import training_device
+from bbpose_ros.core.training.settings import QNetTrainSettings
 
 if TYPE_CHECKING:
     import torch
@@ -34,7 +34,6 @@ if TYPE_CHECKING:
     from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache
-    from bbpose_ros.core.training.qnet_training import QNetTrainSettings
 
 
 def load_cache(args: argparse.Namespace,
@@ -91,14 +90,14 @@ def cache_camera(dataset_dir: Path | str) -> CameraIntrinsics:
 
 
 def qnet_setup(args: argparse.Namespace) -> tuple[
-        TrainingCache | CropCache, dict[str, ObjectModel], QNetConfig, QNetTrainSettings,
-        torch.device]:
-    """Return Q-Net's cache, meshes, config, train settings and device from the options."""
+        TrainingCache | CropCache, dict[str, ObjectModel], QNetConfig, QNetTrainSettings]:
+    """Return Q-Net's cache, meshes, config and train settings from the options."""
     from bbpose_ros.core.nets.qnet import QNetConfig
-    from bbpose_ros.core.training.qnet_training import QNetTrainSettings
     if args.hypotheses < 1:
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
-    device = training_device(args.device)
+    measured = None if args.box_sigma_from is None else _measured_sigma(args.box_sigma_from)
+    given = {} if measured is None or args.box_sigma is not None else {'box_sigma': measured}
+    settings = settings_from(args, QNetTrainSettings, **given)
     cache, models = load_cache(args)
     try:
         config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,
@@ -107,14 +106,7 @@ def qnet_setup(args: argparse.Namespace) -> tuple[
                             hypotheses=args.hypotheses, backbone=args.backbone)
     except ValueError as err:
         raise InputError(f'invalid Q-Net options: {err}') from None
-    settings = training_settings(QNetTrainSettings(sign_invariant=args.sign_invariant,
-                                                   max_inplane_deg=args.max_inplane_deg),
-                                 args)
-    if args.box_sigma_from is not None:
-        settings.box_sigma = _measured_sigma(args.box_sigma_from)
-    if args.box_sigma is not None:
-        settings.box_sigma = args.box_sigma
-    return cache, models, config, settings, device
+    return cache, models, config, settings
 
 
 def _measured_sigma(path):

@@ -16,12 +16,12 @@
 
 import argparse
 
-from bbpose_ros.cli.train.arguments import (add_augment_option, add_budget_options,
-                                            add_common_options, add_extra_cache_option,
-                                            add_init_option, seconds, training_settings)
+from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
+                                            add_extra_cache_option, add_init_option,
+                                            add_settings_options, settings_from, training_run)
 from bbpose_ros.cli.train.inputs import init_network
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.training.device import training_device
+from bbpose_ros.core.training.settings import DenseTrainSettings
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -38,21 +38,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             '(default %(default)s)')
     dense.add_argument('--channels', type=int, default=64,
                        help="the decoder's width at stride 4 (default %(default)s)")
-    dense.add_argument('--coordinate-weight', type=float, default=None,
-                       help='weight of the coordinate L1 beside the mask BCEs (default 1)')
-    dense.add_argument('--frozen-blocks', type=int, default=None,
-                       help="trunk blocks (after the stem) kept at ImageNet's weights "
-                            '(default 5: strides 2 to 8)')
     add_extra_cache_option(dense, 'crop')
-    dense.add_argument('--trunk-lr-scale', type=float, default=None,
-                       help="the trunk's learning rate / the decoder's (0 freezes it; "
-                            'default 0.1)')
     add_init_option(dense)
-    add_augment_option(dense)
     dense.add_argument('--real-val', action='store_true',
                        help="also score the real frames of --dataset's test split at every "
                             'checkpoint (ground-truth boxes, PnP poses, mask IoU); they are '
                             'never trained on')
+    add_settings_options(dense, DenseTrainSettings)
     dense.set_defaults(func=run)
 
 
@@ -61,9 +53,9 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.data.models import load_bop_models
     from bbpose_ros.core.nets.dense import DenseConfig
     from bbpose_ros.core.training.crop_cache import CropCache
-    from bbpose_ros.core.training.dense_training import DenseTrainSettings
     from bbpose_ros.core.training.runs import train_dense
-    device = training_device(args.device)
+    training = training_run(args)
+    settings = settings_from(args, DenseTrainSettings)
     cache = CropCache([args.cache, *args.extra_cache], args.max_shards)
     models = load_bop_models(args.dataset, args.objects or cache.objects)
     try:
@@ -71,14 +63,12 @@ def run(args: argparse.Namespace) -> int:
                              channels=args.channels)
     except ValueError as err:
         raise InputError(f'invalid dense net options: {err}') from None
-    settings = training_settings(DenseTrainSettings(), args)
     real = None
     if args.real_val:
         from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealDenseCrops
         real = RealDenseCrops(BopDataset(args.dataset).frames(), config,
                               load_bop_models(args.dataset))
-    train_dense(cache, models, config, settings, args.run_dir, args.steps, seconds(args),
-                args.seed, args.threads, args.export, args.every, real_crops=real,
-                device=device, init=init_network(args, 'dense', models))
+    train_dense(cache, models, config, settings, training, real_crops=real,
+                init=init_network(args, 'dense', models))
     return 0

@@ -16,13 +16,13 @@
 
 import argparse
 
-from bbpose_ros.cli.train.arguments import (add_augment_option, add_backbone_options,
-                                            add_budget_options, add_common_options,
-                                            add_extra_cache_option, add_init_option,
-                                            int_tuple, seconds, training_settings)
+from bbpose_ros.cli.train.arguments import (add_backbone_option, add_budget_options,
+                                            add_common_options, add_extra_cache_option,
+                                            add_init_option, add_settings_options, int_tuple,
+                                            settings_from, training_run)
 from bbpose_ros.cli.train.inputs import init_network, load_cache
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.training.device import training_device
+from bbpose_ros.core.training.settings import DetectorTrainSettings
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -32,32 +32,27 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_budget_options(parser)
     parser.set_defaults(func=run)
     add_extra_cache_option(parser, 'scene')
-    add_backbone_options(parser)
+    add_backbone_option(parser)
     add_init_option(parser)
-    add_augment_option(parser)
-    parser.add_argument('--train-crop', type=int_tuple, default=None, metavar='W,H',
-                        help='training window in input pixels, multiples of 16 '
-                             '(default 192,160)')
     parser.add_argument('--export-input-size', type=int_tuple, default=None, metavar='W,H',
                         help='input size recorded in the --export copy, multiples of 16: the '
                              'detector is fully convolutional and may run at another size '
                              "than the cache's (default: the cache's)")
+    add_settings_options(parser, DetectorTrainSettings)
 
 
 def run(args: argparse.Namespace) -> int:
     """Train the detector."""
     from bbpose_ros.core.nets.detector import DetectorConfig
-    from bbpose_ros.core.training.detector_training import DetectorTrainSettings
     from bbpose_ros.core.training.runs import train_detector
-    device = training_device(args.device)
+    training = training_run(args)
     cache, models = load_cache(args)
     config = DetectorConfig(tuple(models), input_size=tuple(cache.input_size),
                             backbone=args.backbone)
-    settings = training_settings(DetectorTrainSettings(), args)
-    if args.train_crop is None:      # the default window, cut to a smaller cache's frames
-        settings.train_crop = tuple(min(side, full) for side, full
-                                    in zip(settings.train_crop, cache.input_size))
-    window = settings.train_crop
+    window = args.train_crop
+    if window is None:      # the default window, cut to a smaller cache's frames
+        window = tuple(min(side, full) for side, full
+                       in zip(DetectorTrainSettings().train_crop, cache.input_size))
     if len(window) != 2 or any(side <= 0 or side % 16 or side > full
                                for side, full in zip(window, cache.input_size)):
         raise InputError(f'--train-crop must be W,H in multiples of 16 within the cache input '
@@ -67,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
             side <= 0 or side % 16 for side in export_size)):
         raise InputError('--export-input-size needs --export and W,H in multiples of 16, got '
                          f'{export_size}')
-    train_detector(cache, config, settings, args.run_dir,
-                   args.steps, seconds(args), args.seed, args.threads, args.export,
-                   args.every, device=device,
+    settings = settings_from(args, DetectorTrainSettings, train_crop=tuple(window))
+    train_detector(cache, config, settings, training,
                    export_input_size=None if export_size is None else tuple(export_size),
                    init=init_network(args, 'detector', models))
     return 0

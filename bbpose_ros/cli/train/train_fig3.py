@@ -20,6 +20,7 @@ import json
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
                                             add_qnet_options)
 from bbpose_ros.cli.train.inputs import qnet_setup
+from bbpose_ros.core.training.device import training_device
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +36,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train Q-Net with and without q-normalization and plot both losses."""
     from bbpose_ros.core.training.fig3 import q_normalization_experiment
-    cache, models, config, settings, device = qnet_setup(args)
+    device = training_device(args.device)
+    cache, models, config, settings = qnet_setup(args)
     summary = q_normalization_experiment(cache, models, config, settings, args.run_dir,
                                          args.steps, args.seed, args.threads, device=device)
     print(json.dumps(summary, indent=1))

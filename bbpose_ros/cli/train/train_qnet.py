@@ -17,7 +17,7 @@
 import argparse
 
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
-                                            add_init_option, add_qnet_options, seconds)
+                                            add_init_option, add_qnet_options, training_run)
 from bbpose_ros.cli.train.inputs import init_network, qnet_setup
 
 
@@ -34,13 +34,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train Q-Net."""
     from bbpose_ros.core.training.runs import train_qnet
-    cache, models, config, settings, device = qnet_setup(args)
+    training = training_run(args)
+    cache, models, config, settings = qnet_setup(args)
     real = None
     if args.real_val:
         from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealCrops
         real = RealCrops(BopDataset(args.dataset).frames(), config.objects, models)
-    train_qnet(cache, models, config, settings, args.run_dir, args.steps, seconds(args),
-               args.seed, args.threads, args.export, args.every, real_crops=real,
-               device=device, init=init_network(args, 'qnet', models))
+    train_qnet(cache, models, config, settings, training, real_crops=real,
+               init=init_network(args, 'qnet', models))
     return 0

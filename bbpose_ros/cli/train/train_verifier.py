@@ -18,10 +18,10 @@ import argparse
 from pathlib import Path
 
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
-                                            add_extra_cache_option, int_tuple, seconds,
-                                            training_settings)
+                                            add_extra_cache_option, add_settings_options,
+                                            int_tuple, settings_from, training_run)
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.training.device import training_device
+from bbpose_ros.core.training.settings import VerifierTrainSettings
 
 VERIFIER_CHANNELS = (12, 24, 48, 48)
 
@@ -46,6 +46,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     verifier.add_argument('--real-val', action='store_true',
                           help="also measure the detector's recall on the dataset's real "
                                'frames (measured only, never trained on)')
+    add_settings_options(verifier, VerifierTrainSettings)
     verifier.set_defaults(func=run)
 
 
@@ -54,14 +55,14 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.inference.weights import load_network
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.runs import train_verifier, with_verifier
-    from bbpose_ros.core.training.verifier_training import VerifierTrainSettings
     if args.candidates < 1:
         raise InputError(f'--candidates must be at least 1, got {args.candidates}')
     if args.crop_size < 8 or args.crop_size % 8:
         raise InputError(f'--crop-size must be a positive multiple of 8, got {args.crop_size}')
     if len(args.channels) != 4:
         raise InputError(f'--channels needs 4 widths, got {len(args.channels)}')
-    device = training_device(args.device)
+    training = training_run(args)
+    settings = settings_from(args, VerifierTrainSettings)
     detector = load_network(args.detector_weights, 'detector')
     cache = TrainingCache([args.cache, *args.extra_cache], args.max_shards)
     if tuple(cache.input_size) != tuple(detector.config.input_size):
@@ -74,7 +75,5 @@ def run(args: argparse.Namespace) -> int:
         from bbpose_ros.core.data.bop import BopDataset
         from bbpose_ros.core.training.real_validation import RealDetections
         real = RealDetections(BopDataset(args.dataset).frames(), cascade.config.objects)
-    train_verifier(cache, cascade, training_settings(VerifierTrainSettings(), args),
-                   args.run_dir, args.steps, seconds(args), args.seed, args.threads,
-                   args.export, args.every, real_frames=real, device=device)
+    train_verifier(cache, cascade, settings, training, real_frames=real)
     return 0

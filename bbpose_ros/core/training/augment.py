@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from bbpose_ros.core.synth.effects import adjust_colors, jpeg_roundtrip
+from bbpose_ros.core.training.settings import AUGMENT_STYLES
 
 IMAGE_AXES, CHANNEL_AXIS = (1, 2, 3), 1      # of an (N, 3, H, W) batch
 
@@ -46,9 +47,6 @@ def photometric(images: torch.Tensor, generator: torch.Generator,
     sigma = torch.rand((n, 1, 1, 1), generator=generator) * 0.03 * strength
     images.add_(torch.randn(images.shape, generator=generator) * sigma)
     return images.clamp_(0.0, 1.0)
-
-
-AUGMENT_STYLES = ('basic', 'strong')
 
 
 def augment_batch(images: torch.Tensor, generator: torch.Generator, strength: float,

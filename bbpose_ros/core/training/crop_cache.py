@@ -50,6 +50,8 @@ from bbpose_ros.core.training.cache import camera_meta, photo_count, render_shar
 if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropSample, CropScenes
     from bbpose_ros.core.synth.table_crops import TableCrops
+    from bbpose_ros.core.training.cache import TrainingCache
+    from bbpose_ros.core.training.settings import TrainSettings
 
 SHARD_SIZE = 2000
 # Table scenes per shard of a TableCrops cache (each gives several crops).
@@ -228,3 +230,23 @@ class CropCache:
             crops = np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA)
                               for c in crops])
         return crops, self.input_box_uv[ids].astype(float)
+
+
+def instance_split(cache: TrainingCache | CropCache, objects: Sequence[str],
+                   settings: TrainSettings, keep: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Each cached instance's network index, and the instances a run trains and validates on.
+
+    Returns (m,) the index of each instance's object in ``objects`` (-1: not there), and
+    the ids of the instances of those objects at least ``settings.min_visib`` visible (and
+    ``keep``, (m,) bool, where given) outside and inside the held-out
+    ``settings.val_fraction`` (``held_out``).
+    """
+    index = np.array([objects.index(name) if name in objects else -1
+                      for name in cache.objects])[cache.object]
+    usable = (index >= 0) & (cache.visib >= settings.min_visib)
+    if keep is not None:
+        usable &= keep
+    held_out = cache.held_out(settings.val_fraction)
+    return index, np.flatnonzero(usable & ~held_out), np.flatnonzero(usable & held_out)

@@ -32,7 +32,6 @@ the same target. Validation uses the last ``val_fraction`` of each cache folder.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,7 +48,9 @@ from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import augment_batch
+from bbpose_ros.core.training.crop_cache import instance_split
 from bbpose_ros.core.training.device import TrainingDevice
+from bbpose_ros.core.training.settings import DenseTrainSettings
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -57,22 +58,6 @@ if TYPE_CHECKING:
 
 # Cells whose visible share reaches this carry a coordinate target.
 COORDINATE_CELL_SHARE = 0.5
-
-
-@dataclass
-class DenseTrainSettings:
-    """Hyper-parameters of a dense net run (all recorded in the weight file)."""
-
-    batch: int = 32
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    min_visib: float = 0.15
-    val_fraction: float = 0.05
-    augment: float = 1.0
-    augment_style: str = 'basic'
-    trunk_lr_scale: float = 0.1
-    coordinate_weight: float = 1.0
-    frozen_blocks: int = 5
 
 
 def target_cells(cache_size: int, map_size: int) -> np.ndarray | None:
@@ -151,13 +136,8 @@ class DenseBatches:
         if missing and require_all:
             raise InputError(f'the crop cache lacks the object(s) {", ".join(missing)}')
         self.cache, self.config, self.settings = cache, config, settings
-        net_index = np.array([config.objects.index(name) if name in config.objects else -1
-                              for name in cache.objects])
-        self.net_index = net_index[cache.object]
-        held_out = cache.held_out(settings.val_fraction)
-        usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)
-        self.train_ids = np.flatnonzero(usable & ~held_out)
-        self.val_ids = np.flatnonzero(usable & held_out)
+        self.net_index, self.train_ids, self.val_ids = instance_split(cache, config.objects,
+                                                                      settings)
         object_models = [models[name] for name in config.objects]
         self.boxes = np.array([model_box(m.vertices) for m in object_models])  # (O, 2, 3)
         self.symmetries = [m.symmetry_transforms for m in object_models]
@@ -184,7 +164,7 @@ class DenseBatches:
     def train_batch(self) -> tuple[torch.Tensor, ...]:
         """Draw a training batch (see ``make``)."""
         ids = self.rng.choice(self.train_ids, self.settings.batch)
-        return self.make(ids, self.settings.augment)
+        return self.make(ids, self.settings.augment_strength)
 
     def targets(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return (n, M, M, 3) canonical coordinates, (n, M, M) visible and amodal shares."""
@@ -203,9 +183,9 @@ class DenseBatches:
             return coordinates, visible, amodal
         return tuple(maps[:, cells][:, :, cells] for maps in (coordinates, visible, amodal))
 
-    def make(self, ids: np.ndarray, augment: float) -> tuple[torch.Tensor, ...]:
+    def make(self, ids: np.ndarray, strength: float) -> tuple[torch.Tensor, ...]:
         """
-        Build the batch of crops ``ids``.
+        Build the batch of crops ``ids``, augmented at ``strength`` (0: not at all).
 
         Returns images (B, 3, S, S), object index (B,), coordinates (B, 3, M, M), visible
         and amodal shares (B, M, M).
@@ -213,7 +193,7 @@ class DenseBatches:
         config = self.config
         crops, _ = self.cache.input_crops(ids, None, None, config.crop_size, config.context)
         images = images_to_input(torch.from_numpy(crops))
-        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
+        images = augment_batch(images, self.generator, strength, self.settings.augment)
         coordinates, visible, amodal = self.targets(ids)
         return (images.contiguous(memory_format=torch.channels_last),
                 torch.from_numpy(self.net_index[ids]),

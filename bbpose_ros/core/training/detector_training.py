@@ -27,7 +27,6 @@ Q-Net's training jitter should match.
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -41,22 +40,7 @@ from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.device import TrainingDevice
-
-
-@dataclass
-class DetectorTrainSettings:
-    """Hyper-parameters of a detector run (recorded in the weight file)."""
-
-    batch: int = 16
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    min_visib: float = 0.1
-    box_weight: float = 1.0
-    val_fraction: float = 0.05
-    augment: float = 1.0
-    augment_style: str = 'basic'
-    train_crop: tuple[int, int] = (192, 160)
-    trunk_lr_scale: float = 0.1
+from bbpose_ros.core.training.settings import DetectorTrainSettings
 
 
 def detector_classes(config: DetectorConfig, cache: TrainingCache) -> np.ndarray:
@@ -99,11 +83,11 @@ class DetectorBatches:
     def train_batch(self) -> tuple[torch.Tensor, ...]:
         """Images (B, 3, H, W) float, heatmap (B, C, h, w), sides (B, 4, h, w), weight."""
         scenes = self.rng.choice(self.train_scenes, self.settings.batch)
-        return self.make(scenes, self.settings.augment, self.settings.train_crop)
+        return self.make(scenes, self.settings.augment_strength, self.settings.train_crop)
 
-    def make(self, scenes: Sequence[int] | np.ndarray, augment: float,
+    def make(self, scenes: Sequence[int] | np.ndarray, strength: float,
              window: tuple[int, int] | None = None) -> tuple[torch.Tensor, ...]:
-        """Build the batch of the cached scenes ``scenes``, cut to ``window`` (w, h) if set."""
+        """Build the batch of ``scenes``, augmented at ``strength``, cut to ``window`` (w, h)."""
         full_w, full_h = self.config.input_size
         width, height = window or (full_w, full_h)
         stride = self.config.stride
@@ -113,7 +97,7 @@ class DetectorBatches:
         images = np.stack([self.cache.images[s, y:y + height, x:x + width]
                            for s, (x, y) in zip(scenes, offsets)])
         images = images_to_input(torch.from_numpy(images))
-        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
+        images = augment_batch(images, self.generator, strength, self.settings.augment)
         targets = [self._targets(self.by_scene[s], offset, width, height)
                    for s, offset in zip(scenes, offsets)]
         heat, sides, weight = (torch.from_numpy(np.stack(t)) for t in zip(*targets))

@@ -47,14 +47,14 @@ from bbpose_ros.core.nets.detector import CenterBoxNet
 from bbpose_ros.core.nets.qnet import QNet
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.crop_cache import CropCache
-from bbpose_ros.core.training.dense_training import (dense_loss, dense_validation, DenseBatches,
-                                                     DenseTrainSettings)
+from bbpose_ros.core.training.dense_training import dense_loss, dense_validation, DenseBatches
 from bbpose_ros.core.training.detector_training import (detector_validation, DetectorBatches,
-                                                        DetectorTrainSettings, focal_loss)
+                                                        focal_loss)
 from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import cosine_lr
-from bbpose_ros.core.training.qnet_training import (qnet_loss, qnet_validation, QNetBatches,
-                                                    QNetTrainSettings)
+from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
+from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
+                                               QNetTrainSettings)
 
 Network = CenterBoxNet | QNet | DenseNet
 
@@ -152,8 +152,8 @@ class _RowTask:
         """Return the training inputs (scenes or crops) to cache."""
         return self.batches.train_ids
 
-    def encode(self, units, augment):
-        """(features, targets...) of ``units``, all tensors with a leading batch axis."""
+    def encode(self, units, strength):
+        """(features, targets...) of ``units`` augmented at ``strength``: batch axis first."""
         raise NotImplementedError
 
     def loss(self, outputs, *targets):
@@ -167,8 +167,8 @@ class _DetectorTask(_RowTask):
     def units(self):
         return self.batches.train_scenes
 
-    def encode(self, units, augment):
-        images, heat, _, _ = self.batches.make(units, augment)
+    def encode(self, units, strength):
+        images, heat, _, _ = self.batches.make(units, strength)
         channels = torch.from_numpy(np.flatnonzero(self.new_index >= 0))
         return self.network.features(images), heat[:, channels]
 
@@ -179,10 +179,10 @@ class _DetectorTask(_RowTask):
 class _QNetTask(_RowTask):
     chunk = 64
 
-    def encode(self, units, augment):
+    def encode(self, units, strength):
         settings = self.batches.settings
         images, index, candidates, valid = self.batches.make(
-            units, self.batches.rng, settings.box_sigma, augment)
+            units, self.batches.rng, settings.box_sigma, strength)
         return (self.network.features(images), torch.from_numpy(self.new_index)[index],
                 candidates, valid)
 
@@ -196,8 +196,8 @@ class _QNetTask(_RowTask):
 class _DenseTask(_RowTask):
     chunk = 32
 
-    def encode(self, units, augment):
-        images, index, coordinates, visible, amodal = self.batches.make(units, augment)
+    def encode(self, units, strength):
+        images, index, coordinates, visible, amodal = self.batches.make(units, strength)
         return (self.network.features(images), torch.from_numpy(self.new_index)[index],
                 coordinates, visible, amodal)
 
@@ -256,7 +256,7 @@ def fit_new_rows(network: Network, new_objects: Sequence[str],
     new_index = np.where(is_new, np.cumsum(is_new) - 1, -1)    # rank among the new rows
     task = task_type(batches, network, new_index)
     network.eval()
-    cached = _cache_features(task, rows.passes, settings.augment, progress)
+    cached = _cache_features(task, rows.passes, settings.augment_strength, progress)
     layer = getattr(network, object_layer_name(network))
     width = rows_per_object(network)
     chosen = torch.from_numpy(np.concatenate([np.arange(k * width, (k + 1) * width)
@@ -291,13 +291,13 @@ def _fit_rows(task, cached, start, apply, rows, rng, progress):
     return weight.detach(), bias.detach()
 
 
-def _cache_features(task, passes, augment, progress):
+def _cache_features(task, passes, strength, progress):
     """Run the frozen layers over ``passes`` augmented copies of the training inputs."""
     units = task.units()
     chunks = [units[i:i + task.chunk] for i in range(0, len(units), task.chunk)] * passes
     parts = []
     with torch.inference_mode():
         for chunk in tqdm(chunks, desc='features', unit='batch', disable=not progress):
-            features, *targets = task.encode(chunk, augment)
+            features, *targets = task.encode(chunk, strength)
             parts.append((features.to(torch.float16), *targets))
     return [torch.cat(column) for column in zip(*parts)]

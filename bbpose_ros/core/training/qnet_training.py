@@ -34,7 +34,6 @@ rule, where the target jumps from q to -q, disappears.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -47,29 +46,14 @@ from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import multi_hypothesis_loss, symmetric_dot_product_loss
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.training.augment import augment_batch
+from bbpose_ros.core.training.crop_cache import instance_split
 from bbpose_ros.core.training.device import TrainingDevice
+from bbpose_ros.core.training.settings import QNetTrainSettings
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
     from bbpose_ros.core.training.cache import TrainingCache
     from bbpose_ros.core.training.crop_cache import CropCache
-
-
-@dataclass
-class QNetTrainSettings:
-    """Hyper-parameters of a Q-Net run (all recorded in the weight file)."""
-
-    batch: int = 64
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    min_visib: float = 0.2
-    box_sigma: float = 0.05
-    val_fraction: float = 0.05
-    augment: float = 1.0
-    augment_style: str = 'basic'
-    sign_invariant: bool = False
-    max_inplane_deg: float | None = None
-    trunk_lr_scale: float = 0.1
 
 
 class QNetBatches:
@@ -90,15 +74,10 @@ class QNetBatches:
                  models: Mapping[str, ObjectModel], settings: QNetTrainSettings,
                  seed: int) -> None:
         self.cache, self.config, self.settings = cache, config, settings
-        net_index = np.array([config.objects.index(name) if name in config.objects else -1
-                              for name in cache.objects])
-        self.net_index = net_index[cache.object]
-        held_out = cache.held_out(settings.val_fraction)
-        usable = (self.net_index >= 0) & (cache.visib >= settings.min_visib)
-        if settings.max_inplane_deg is not None:
-            usable &= np.abs(inplane_deg(cache)) <= settings.max_inplane_deg
-        self.train_ids = np.flatnonzero(usable & ~held_out)
-        self.val_ids = np.flatnonzero(usable & held_out)
+        upright = None if settings.max_inplane_deg is None else \
+            np.abs(inplane_deg(cache)) <= settings.max_inplane_deg
+        self.net_index, self.train_ids, self.val_ids = instance_split(cache, config.objects,
+                                                                      settings, upright)
         self.symmetries, self.symmetry_valid = symmetry_rotations(
             [models[n] for n in config.objects])
         self.rng = np.random.default_rng(seed)
@@ -107,15 +86,15 @@ class QNetBatches:
     def train_batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(crops (B, 3, S, S) float, object index (B,), candidates (B, K, 4), valid (B, K))."""
         ids = self.rng.choice(self.train_ids, self.settings.batch)
-        return self.make(ids, self.rng, self.settings.box_sigma, self.settings.augment)
+        return self.make(ids, self.rng, self.settings.box_sigma, self.settings.augment_strength)
 
     def make(self, ids: np.ndarray, rng: np.random.Generator, box_sigma: float,
-             augment: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Build a batch of the instances ``ids`` with the given jitter and augmentation."""
+             strength: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Build a batch of the instances ``ids``: ``box_sigma`` jitter, ``strength`` augmented."""
         cache, config = self.cache, self.config
         crops, boxes = cache.input_crops(ids, rng, box_sigma, config.crop_size, config.context)
         images = images_to_input(torch.from_numpy(crops))
-        images = augment_batch(images, self.generator, augment, self.settings.augment_style)
+        images = augment_batch(images, self.generator, strength, self.settings.augment)
         rotations = cache.rotation[ids].astype(float)
         if config.rotation_target == 'allocentric':
             rotations = egocentric_to_allocentric(rotations,

@@ -18,19 +18,20 @@ Training runs of Q-Net, the detector and the dense net: build, train, checkpoint
 Each run folder gets ``checkpoint.pt`` (resumable), ``log.csv``, ``train.log``, ``loss.png``
 and the exported weight file (``qnet.pt`` / ``detector.pt`` / ``dense.pt``, with metadata, see
 ``core.inference.weights``), re-exported at every checkpoint; ``export`` copies it elsewhere
-too. The detector's second stage trains in a run of its own and is exported with its first
-stage in one ``detector.pt``.
+too. A ``TrainingRun`` says where a run writes, how long it goes and what it runs on; its
+network's settings are a ``settings`` class. The detector's second stage trains in a run of
+its own and is exported with its first stage in one ``detector.pt``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 import shutil
 import subprocess
 import sys
-from typing import TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 import torch
 
@@ -42,17 +43,14 @@ from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import EfficientNetLite0, load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.training.dense_training import (dense_step, dense_validation,
-                                                     DenseBatches, DenseTrainSettings,
-                                                     freeze_early_blocks)
+                                                     DenseBatches, freeze_early_blocks)
 from bbpose_ros.core.training.detector_training import (detector_step, detector_validation,
-                                                        DetectorBatches, DetectorTrainSettings)
+                                                        DetectorBatches)
 from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import run_loop, RunLog
-from bbpose_ros.core.training.qnet_training import (qnet_step, qnet_validation, QNetBatches,
-                                                    QNetTrainSettings)
+from bbpose_ros.core.training.qnet_training import qnet_step, qnet_validation, QNetBatches
 from bbpose_ros.core.training.verifier_training import (CandidateCrops, verifier_step,
-                                                        verifier_validation, VerifierBatches,
-                                                        VerifierTrainSettings)
+                                                        verifier_validation, VerifierBatches)
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -60,6 +58,9 @@ if TYPE_CHECKING:
     from bbpose_ros.core.training.crop_cache import CropCache
     from bbpose_ros.core.training.real_validation import RealCrops, RealDenseCrops, \
         RealDetections
+    from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
+                                                   QNetTrainSettings, TrainSettings,
+                                                   VerifierTrainSettings)
 
 
 def git_commit() -> str:
@@ -71,21 +72,57 @@ def git_commit() -> str:
         return 'unknown'
 
 
-def _prepare(run_dir, seed, threads, device):
-    """Seed, set the CPU threads, log the command; return the run's TrainingDevice."""
-    torch.manual_seed(seed)
-    if threads:
-        torch.set_num_threads(threads)
-    device = TrainingDevice(device)
-    RunLog(run_dir).text(f'command: {" ".join(sys.argv)} (device {device}, torch threads '
-                         f'{torch.get_num_threads()})')
-    return device
-
-
-def _exporter(run_dir, network, kind, training, export, validation, base=None,
-              export_input_size=None):
+@dataclass(frozen=True)
+class TrainingRun:
     """
-    Return a checkpoint hook that writes the weight file (and its copy).
+    Where a training run writes, how long it goes and what it runs on.
+
+    What every network's run takes besides its data, network and settings.
+
+    Attributes:
+        run_dir: run folder: ``checkpoint.pt`` (resumed), logs, plot and the weight file.
+        steps: total steps (the learning-rate schedule spans them).
+        seconds: stop after this many seconds of this call (resume later); None: no limit.
+        seed: seed of the initialisation and the batch draws.
+        threads: torch's CPU threads; None or 0: torch's default.
+        export: also copy the weight file here at every checkpoint; None: not.
+        every: steps between checkpoints (each validates and writes the weight file).
+        progress: show a progress bar.
+        device: 'cpu' or 'cuda' (with mixed precision, see ``device.py``).
+
+    """
+
+    run_dir: Path | str
+    steps: int
+    seconds: float | None = None
+    seed: int = 0
+    threads: int | None = None
+    export: Path | str | None = None
+    every: int = 500
+    progress: bool = True
+    device: str | torch.device = 'cpu'
+
+    def start(self) -> TrainingDevice:
+        """Seed, set the CPU threads, log the command; return the run's TrainingDevice."""
+        torch.manual_seed(self.seed)
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        device = TrainingDevice(self.device)
+        RunLog(self.run_dir).text(f'command: {" ".join(sys.argv)} (device {device}, torch '
+                                  f'threads {torch.get_num_threads()})')
+        return device
+
+    def record(self, settings: TrainSettings, device: TrainingDevice,
+               **details: Any) -> dict[str, Any]:
+        """Return the weight file's training record of this run, with ``details`` added."""
+        return {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': self.seed,
+                'settings': asdict(settings), 'total_steps': self.steps,
+                'device': device.device.type, **details}
+
+
+def _exporter(run, network, kind, training, validation, base=None, export_input_size=None):
+    """
+    Return a checkpoint hook that writes the weight file (and its copy, ``run.export``).
 
     The file's training record is ``training`` with the step and latest ``validation``; with
     a ``base`` record (the first stage's, for a second stage), ``base`` with that record as
@@ -96,65 +133,71 @@ def _exporter(run_dir, network, kind, training, export, validation, base=None,
         record = dict(training, steps=step, validation=validation)
         if base is not None:
             record = dict(base, verifier=record)
-        path = Path(run_dir) / f'{kind}.pt'
+        path = Path(run.run_dir) / f'{kind}.pt'
         save_weights(path, network, kind, record)
-        if export and export_input_size:
-            save_weights(export, network, kind, record,
+        if run.export and export_input_size:
+            save_weights(run.export, network, kind, record,
                          replace(network.config, input_size=tuple(export_input_size)))
-        elif export:
-            with atomic_output(export) as tmp:
+        elif run.export:
+            with atomic_output(run.export) as tmp:
                 shutil.copyfile(path, tmp)
     return export_weights
 
 
-def _validated(validate, store):
-    """Wrap ``validate`` so that its latest figures are kept in ``store``."""
-    def run():
+def _train(run, device, network, optimizer, step, lr, validate, kind, training, real=None,
+           exported=None, **export):
+    """
+    Run the loop of ``run``: ``step(step_index)`` until done, validating at checkpoints.
+
+    ``network`` and ``optimizer`` are checkpointed, the optimizer's groups following the
+    cosine schedule of peak ``lr``. Each checkpoint validates (``validate()``'s figures and,
+    with ``real``, ``real()``'s on real frames) and writes ``exported`` (default
+    ``network``) as the weight file of ``kind`` with the record ``training`` and the latest
+    figures; ``export``: ``_exporter``'s ``base`` and ``export_input_size``.
+    """
+    validation = {}
+
+    def validated():
         figures = validate()
-        store.clear()
-        store.update(figures)
+        if real is not None:
+            figures.update(real())
+        validation.clear()
+        validation.update(figures)
         return figures
-    return run
+
+    hook = _exporter(run, network if exported is None else exported, kind, training,
+                     validation, **export)
+    run_loop(run.run_dir, network, optimizer, step, run.steps, run.seconds, lr,
+             validate=validated, every=run.every, on_checkpoint=hook, progress=run.progress,
+             device=device)
 
 
 def train_qnet(cache: TrainingCache | CropCache, models: Mapping[str, ObjectModel],
-               config: QNetConfig, settings: QNetTrainSettings, run_dir: Path | str,
-               steps: int, seconds: float | None = None, seed: int = 0,
-               threads: int | None = None, export: Path | str | None = None, every: int = 500,
-               progress: bool = True, real_crops: RealCrops | None = None,
-               device: str | torch.device = 'cpu', init: QNet | None = None) -> QNet:
+               config: QNetConfig, settings: QNetTrainSettings, run: TrainingRun,
+               real_crops: RealCrops | None = None, init: QNet | None = None) -> QNet:
     """
     Train (or resume) a Q-Net on a TrainingCache or CropCache; returns the network.
 
-    ``config`` is a QNetConfig, ``settings`` a QNetTrainSettings; budgets as in
-    ``loop.run_loop``. The weight file is written to ``run_dir/qnet.pt`` (and ``export``).
-    ``real_crops`` (a ``RealCrops``) adds real-frame figures to every validation, measured
-    on the CPU. ``device``: 'cpu' or 'cuda' (with mixed precision, see ``device.py``).
+    ``config`` is a QNetConfig, ``settings`` a QNetTrainSettings, ``run`` the TrainingRun.
+    The weight file is written to ``run_dir/qnet.pt`` (and ``export``). ``real_crops`` (a
+    ``RealCrops``) adds real-frame figures to every validation, measured on the CPU.
     ``init``: a trained Q-Net of the same config to start from (``start_weights``).
     """
-    device = _prepare(run_dir, seed, threads, device)
+    device = run.start()
     network, optimizer = _start_network(QNet(config), settings, device, init)
-    batches = QNetBatches(cache, config, models, settings, seed)
-    validation = {}
-    training = dict(_crop_run_record(cache, settings, steps, seed, device),
-                    init=_init_command(init))
-    run_loop(run_dir, network, optimizer,
-             lambda step: qnet_step(network, optimizer, batches, device), steps, seconds,
-             settings.lr,
-             validate=_validated(lambda: _qnet_figures(network, batches, real_crops, device),
-                                 validation),
-             every=every, on_checkpoint=_exporter(run_dir, network, 'qnet', training, export,
-                                                  validation),
-             progress=progress, device=device)
+    batches = QNetBatches(cache, config, models, settings, run.seed)
+    training = run.record(settings, device, **_cache_record(cache), init=_init_command(init))
+    _train(run, device, network, optimizer,
+           lambda step: qnet_step(network, optimizer, batches, device), settings.lr,
+           lambda: qnet_validation(network, batches, device), 'qnet', training,
+           real=None if real_crops is None else lambda: real_crops.figures(network))
     return network
 
 
 def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: DenseConfig,
-                settings: DenseTrainSettings, run_dir: Path | str, steps: int,
-                seconds: float | None = None, seed: int = 0, threads: int | None = None,
-                export: Path | str | None = None, every: int = 500, progress: bool = True,
+                settings: DenseTrainSettings, run: TrainingRun,
                 real_crops: RealDenseCrops | None = None,
-                device: str | torch.device = 'cpu', init: DenseNet | None = None) -> DenseNet:
+                init: DenseNet | None = None) -> DenseNet:
     """
     Train (or resume) a dense net on a CropCache with dense targets; returns the network.
 
@@ -162,27 +205,22 @@ def train_dense(cache: CropCache, models: Mapping[str, ObjectModel], config: Den
     ``real_crops`` (a ``RealDenseCrops``) adds real-frame figures to every validation;
     ``init`` is a trained dense net of the same config to start from (``start_weights``).
     """
-    device = _prepare(run_dir, seed, threads, device)
+    device = run.start()
     network = DenseNet(config)
     freeze_early_blocks(network, settings.frozen_blocks)
     network, optimizer = _start_network(network, settings, device, init)
-    batches = DenseBatches(cache, config, models, settings, seed)
-    validation = {}
-    training = dict(_crop_run_record(cache, settings, steps, seed, device),
-                    init=_init_command(init))
+    batches = DenseBatches(cache, config, models, settings, run.seed)
+    training = run.record(settings, device, **_cache_record(cache), init=_init_command(init))
 
-    def figures():
-        values = dense_validation(network, batches, device)
-        if real_crops is not None:
-            values.update(real_crops.figures(network.cpu()))
-            network.to(device.device)
+    def real_figures():      # measured on the CPU
+        values = real_crops.figures(network.cpu())
+        network.to(device.device)
         return values
 
-    run_loop(run_dir, network, optimizer,
-             lambda step: dense_step(network, optimizer, batches, device), steps, seconds,
-             settings.lr, validate=_validated(figures, validation), every=every,
-             on_checkpoint=_exporter(run_dir, network, 'dense', training, export, validation),
-             progress=progress, device=device)
+    _train(run, device, network, optimizer,
+           lambda step: dense_step(network, optimizer, batches, device), settings.lr,
+           lambda: dense_validation(network, batches, device), 'dense', training,
+           real=None if real_crops is None else real_figures)
     return network
 
 
@@ -228,11 +266,9 @@ def _start_network(network, settings, device, init=None):
     return network, optimizer
 
 
-def _crop_run_record(cache, settings, steps, seed, device):
-    """Return the weight file's training record of a Q-Net or dense run on a cache."""
-    return {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
-            'settings': asdict(settings), 'total_steps': steps, 'device': device.device.type,
-            'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
+def _cache_record(cache):
+    """Return what a Q-Net or dense run's record says of its crop or scene cache."""
+    return {'cache_objects': cache.objects, 'cache_instances': int(len(cache.visib))}
 
 
 def parameter_groups(network, trunk_lr_scale):
@@ -254,19 +290,9 @@ def parameter_groups(network, trunk_lr_scale):
     return [{'params': rest}, {'params': trunk, 'lr_scale': trunk_lr_scale}]
 
 
-def _qnet_figures(network, batches, real_crops, device):
-    figures = qnet_validation(network, batches, device)
-    if real_crops is not None:
-        figures.update(real_crops.figures(network))
-    return figures
-
-
 def train_detector(cache: TrainingCache, config: DetectorConfig,
-                   settings: DetectorTrainSettings, run_dir: Path | str, steps: int,
-                   seconds: float | None = None, seed: int = 0, threads: int | None = None,
-                   export: Path | str | None = None, every: int = 500,
+                   settings: DetectorTrainSettings, run: TrainingRun,
                    export_input_size: tuple[int, int] | None = None,
-                   progress: bool = True, device: str | torch.device = 'cpu',
                    init: CenterBoxNet | None = None) -> CenterBoxNet:
     """
     Train (or resume) the detector on a TrainingCache; as ``train_qnet`` otherwise.
@@ -277,23 +303,15 @@ def train_detector(cache: TrainingCache, config: DetectorConfig,
     same objects and architecture to start from instead (fine-tuning; a resumed run takes
     its checkpoint's weights).
     """
-    device = _prepare(run_dir, seed, threads, device)
+    device = run.start()
     network, optimizer = _start_network(CenterBoxNet(config), settings, device, init)
-    batches = DetectorBatches(cache, config, settings, seed)
-    validation = {}
-    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
-                'settings': asdict(settings), 'total_steps': steps,
-                'device': device.device.type, 'cache_scenes': int(len(cache.images)),
-                'init': _init_command(init)}
-    run_loop(run_dir, network, optimizer,
-             lambda step: detector_step(network, optimizer, batches, device), steps, seconds,
-             settings.lr,
-             validate=_validated(lambda: detector_validation(network, batches, device),
-                                 validation),
-             every=every, on_checkpoint=_exporter(run_dir, network, 'detector', training,
-                                                  export, validation,
-                                                  export_input_size=export_input_size),
-             progress=progress, device=device)
+    batches = DetectorBatches(cache, config, settings, run.seed)
+    training = run.record(settings, device, cache_scenes=int(len(cache.images)),
+                          init=_init_command(init))
+    _train(run, device, network, optimizer,
+           lambda step: detector_step(network, optimizer, batches, device), settings.lr,
+           lambda: detector_validation(network, batches, device), 'detector', training,
+           export_input_size=export_input_size)
     return network
 
 
@@ -316,44 +334,31 @@ def with_verifier(detector: CenterBoxNet, channels: Sequence[int], crop_size: in
 
 
 def train_verifier(cache: TrainingCache, cascade: CenterBoxNet,
-                   settings: VerifierTrainSettings, run_dir: Path | str, steps: int,
-                   seconds: float | None = None, seed: int = 0, threads: int | None = None,
-                   export: Path | str | None = None, every: int = 500, progress: bool = True,
-                   real_frames: RealDetections | None = None,
-                   device: str | torch.device = 'cpu') -> CenterBoxNet:
+                   settings: VerifierTrainSettings, run: TrainingRun,
+                   real_frames: RealDetections | None = None) -> CenterBoxNet:
     """
     Train (or resume) the second stage of ``cascade`` (``with_verifier``) on a TrainingCache.
 
-    The first stage stays as it is. ``settings`` is a VerifierTrainSettings; budgets as in
-    ``loop.run_loop``; ``real_frames`` (a ``RealDetections``) adds the real recall to every
+    The first stage stays as it is. ``settings`` is a VerifierTrainSettings, ``run`` the
+    TrainingRun; ``real_frames`` (a ``RealDetections``) adds the real recall to every
     validation. The weight file, both stages, is ``run_dir/detector.pt`` (and ``export``).
-    ``device`` as in ``train_qnet``.
     """
-    device = _prepare(run_dir, seed, threads, device)
+    device = run.start()
     cascade = cascade.to(device.device, memory_format=torch.channels_last)
-    candidates = CandidateCrops(cascade, cache, settings, seed, device, progress)
-    RunLog(run_dir).text(f'{len(candidates.labels)} candidate crops from {candidates.scenes} '
-                         f'scenes, {int((candidates.labels > 0).sum())} of them on an object')
+    candidates = CandidateCrops(cascade, cache, settings, run.seed, device, run.progress)
+    RunLog(run.run_dir).text(f'{len(candidates.labels)} candidate crops from '
+                             f'{candidates.scenes} scenes, '
+                             f'{int((candidates.labels > 0).sum())} of them on an object')
     verifier = cascade.verifier
     optimizer = torch.optim.AdamW(verifier.parameters(), settings.lr,
                                   weight_decay=settings.weight_decay)
-    batches = VerifierBatches(candidates, settings, seed)
-    validation = {}
-    training = {'command': ' '.join(sys.argv), 'git_commit': git_commit(), 'seed': seed,
-                'settings': asdict(settings), 'total_steps': steps,
-                'device': device.device.type, 'cache_scenes': int(len(cache.images)),
-                'candidate_crops': int(len(candidates.labels))}
-
-    def figures():
-        result = verifier_validation(verifier, batches, device)
-        if real_frames is not None:
-            result.update(real_frames.figures(cascade))
-        return result
-
-    run_loop(run_dir, verifier, optimizer,
-             lambda step: verifier_step(verifier, optimizer, batches, device), steps, seconds,
-             settings.lr, validate=_validated(figures, validation), every=every,
-             on_checkpoint=_exporter(run_dir, cascade, 'detector', training, export,
-                                     validation, base=cascade.metadata['training']),
-             progress=progress, device=device)
+    batches = VerifierBatches(candidates, settings, run.seed)
+    training = run.record(settings, device, cache_scenes=int(len(cache.images)),
+                          candidate_crops=int(len(candidates.labels)))
+    _train(run, device, verifier, optimizer,
+           lambda step: verifier_step(verifier, optimizer, batches, device), settings.lr,
+           lambda: verifier_validation(verifier, batches, device), 'detector', training,
+           real=None if real_frames is None else lambda: real_frames.figures(cascade),
+           exported=cascade,
+           base=cascade.metadata['training'])
     return cascade

@@ -311,14 +311,14 @@ class AddObject:
         network = with_objects(self.base[kind], self.objects)
         if kind == 'detector':
             cache = TrainingCache(self.out / 'renders' / 'scenes')
-            train = DetectorTrainSettings(augment_style='strong', val_fraction=settings.held_out)
+            train = DetectorTrainSettings(augment='strong', val_fraction=settings.held_out)
         elif kind == 'qnet':
             cache = CropCache(self.out / 'renders' / 'crops')
-            train = QNetTrainSettings(augment_style='strong', sign_invariant=True,
+            train = QNetTrainSettings(augment='strong', sign_invariant=True,
                                       max_inplane_deg=45.0, val_fraction=settings.held_out)
         else:
             cache = CropCache(self.out / 'renders' / 'crops')
-            train = DenseTrainSettings(augment_style='strong', coordinate_weight=3.0,
+            train = DenseTrainSettings(augment='strong', coordinate_weight=3.0,
                                        val_fraction=settings.held_out)
         rows = getattr(settings, kind)
         figures = fit_new_rows(network, [self.new.name], cache, self.models, train, rows,

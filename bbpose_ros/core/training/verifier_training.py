@@ -28,7 +28,6 @@ corrections of the positives.
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -40,28 +39,11 @@ from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.verifier import CandidateVerifier
-from bbpose_ros.core.training.augment import photometric
+from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import detector_classes, to_input_pixels
 from bbpose_ros.core.training.device import TrainingDevice
-
-
-@dataclass
-class VerifierTrainSettings:
-    """Settings of a second-stage training run (recorded in the weight file)."""
-
-    batch: int = 256
-    positive_fraction: float = 0.375
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    augment: float = 1.0
-    label_smoothing: float = 0.05
-    positive_iou: float = 0.3
-    box_weight: float = 5.0
-    mined_per_class: int = 10
-    box_sigma: float = 0.06
-    min_visib: float = 0.1
-    val_fraction: float = 0.1
+from bbpose_ros.core.training.settings import VerifierTrainSettings
 
 
 class CandidateCrops:
@@ -155,7 +137,9 @@ class VerifierBatches:
         ids = np.concatenate([self.rng.choice(self.positives, count),
                               self.rng.choice(self.negatives, self.settings.batch - count)])
         crops, labels, corrections = self.batch(ids)
-        return photometric(crops, self.generator, self.settings.augment), labels, corrections
+        crops = augment_batch(crops, self.generator, self.settings.augment_strength,
+                              self.settings.augment)
+        return crops, labels, corrections
 
     def batch(self, ids: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(crops (n, 3, S, S) float, labels (n,) long, corrections (n, 4)) of ``ids``."""
