@@ -28,6 +28,7 @@ from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import egocentric_to_allocentric
 from bbpose_ros.core.inference.backends import make_runner
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import DEFAULT_DENSE_WEIGHTS, load_network, save_weights
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
@@ -275,8 +276,10 @@ def test_dense_weights_round_trip_and_a_foreign_file_is_refused(tmp_path):
     loaded = load_network(path, 'dense', objects=['glue'])
     crops = np.random.default_rng(0).integers(0, 255, (3, 32, 32, 3), dtype=np.uint8)
     index = np.array([0, 1, 1])
-    torch_maps = make_runner(loaded, (crops, index), backend='torch')(crops, index)
-    onnx_maps = make_runner(loaded, (crops, index), dynamic_batch=True)(crops, index)
+    torch_maps = make_runner(loaded, (crops, index),
+                             PipelineOptions(inference_backend='torch'))(crops, index)
+    onnx_maps = make_runner(loaded, (crops, index), PipelineOptions(),
+                            dynamic_batch=True)(crops, index)
     torch.testing.assert_close(onnx_maps, torch_maps, atol=1e-4, rtol=1e-4)
     with pytest.raises(InputError, match='field "kind"'):
         load_network(path, 'qnet')
@@ -301,7 +304,7 @@ def test_the_stage_cuts_crops_as_qnet_and_solves_one_pose_each(lmo_frames, lmo_m
     torch.manual_seed(0)
     frame = lmo_frames[0]
     net = DenseNet(DenseConfig(tuple(lmo_models), crop_size=32, channels=16)).eval()
-    stage = DenseCorrespondenceEstimator(net, lmo_models)
+    stage = DenseCorrespondenceEstimator(net, lmo_models, PipelineOptions())
     detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances]
     maps, poses = stage(frame.load_image(), frame.camera, detections)
     count = len(detections)
@@ -319,9 +322,11 @@ def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_mode
     detections = [Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances
                   if np.all(np.isfinite(i.box_uv))]
     image = frame.load_image()
-    _, alone = DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=1)(
+    _, alone = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
+                                            pnp_threads=1)(
         image, frame.camera, detections)
-    _, pooled = DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=3)(
+    _, pooled = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
+                                             pnp_threads=3)(
         image, frame.camera, detections)
     assert len(detections) >= 4 and sum(p is not None for p in alone) >= len(detections) - 1
     for one, other in zip(alone, pooled):
@@ -330,4 +335,4 @@ def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_mode
             np.testing.assert_array_equal(one.rotation, other.rotation)
             np.testing.assert_array_equal(one.translation, other.translation)
     with pytest.raises(InputError, match='PnP threads must be >= 0'):
-        DenseCorrespondenceEstimator(network, lmo_models, pnp_threads=-1)
+        DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(), pnp_threads=-1)

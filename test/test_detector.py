@@ -19,12 +19,14 @@ import pytest
 import torch
 
 from bbpose_ros.core.eval.detection import average_precision, box_errors, score_detections
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.detector import CenterBoxNet, decode, DetectorConfig
 from bbpose_ros.core.nets.verifier import CandidateVerifier
 from bbpose_ros.core.pipeline.box_detector import best_per_class, BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+TORCH = PipelineOptions(inference_backend='torch')
 
 
 def test_forward_shapes():
@@ -69,7 +71,7 @@ class _FixedNet(torch.nn.Module):
 def test_box_detector_maps_boxes_to_the_full_frame():
     heat, sides = _crafted([(0, 10, 20, 0.9, (16.0, 8.0, 24.0, 8.0)),
                             (1, 5, 5, 0.8, (4.0, 4.0, 4.0, 4.0))])
-    detector = BoxDetector(_FixedNet(heat, sides), ['ape', 'cat'], 0.3, 1, backend='torch')
+    detector = BoxDetector(_FixedNet(heat, sides), ['ape', 'cat'], TORCH)
     detections = detector(np.zeros((480, 640, 3), dtype=np.uint8))
     assert [d.object_name for d in detections] == ['ape']      # 'can' is not wanted
     box_in = np.array([163.5 - 16, 83.5 - 8, 163.5 + 24, 83.5 + 8])
@@ -112,7 +114,7 @@ def test_second_stage_rescoring_picks_the_verified_candidate():
     centre = np.array([30 * 8 + 3.5, 20 * 8 + 3.5]) * 2       # second peak, full frame
     image[int(centre[1]) - 40:int(centre[1]) + 40, int(centre[0]) - 40:int(centre[0]) + 40] = 255
     net = _FixedNet(heat, sides, _BrightnessVerifier())
-    detections = BoxDetector(net, ['ape', 'cat'], 0.3, 1, backend='torch')(image)
+    detections = BoxDetector(net, ['ape', 'cat'], TORCH)(image)
     assert [d.object_name for d in detections] == ['ape']
     assert detections[0].score > 0.9
     box_in = np.array([243.5 - 8, 163.5 - 8, 243.5 + 8, 163.5 + 8])

@@ -21,6 +21,7 @@ import torch
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.backends import inference_network, make_runner
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.images import images_to_input
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
@@ -30,6 +31,8 @@ from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 RNG = np.random.default_rng(5)
+TORCH = PipelineOptions(inference_backend='torch')
+ONNX_1 = PipelineOptions(inference_threads=1)
 
 
 def _images(count, height, width):
@@ -67,12 +70,12 @@ def test_onnxruntime_qnet_matches_torch_for_any_batch(batch, first_stride, hypot
     net = _trained_looking(QNet(QNetConfig(OBJECTS, crop_size=size, first_stride=first_stride,
                                            hypotheses=hypotheses, backbone=backbone)))
     example = (_images(2, size, size), np.array([0, 1]))     # traced with batch 2
-    onnx = make_runner(net, example, 'onnxruntime', threads=1, dynamic_batch=True)
+    onnx = make_runner(net, example, ONNX_1, dynamic_batch=True)
     crops, index = _images(batch, size, size), RNG.integers(0, len(OBJECTS), batch)
     with torch.inference_mode():
         expected = net(images_to_input(torch.from_numpy(crops)), torch.from_numpy(index))
     torch.testing.assert_close(onnx(crops, index), expected, atol=1e-5, rtol=0)
-    torch.testing.assert_close(make_runner(net, example, 'torch')(crops, index), expected,
+    torch.testing.assert_close(make_runner(net, example, TORCH)(crops, index), expected,
                                atol=1e-5, rtol=0)
 
 
@@ -83,7 +86,7 @@ def test_onnxruntime_detector_matches_torch(backbone):
     image = _images(1, height, width)
     with torch.inference_mode():
         expected = net(images_to_input(torch.from_numpy(image)))
-    outputs = make_runner(net, (image,), 'onnxruntime', threads=1)(image)
+    outputs = make_runner(net, (image,), ONNX_1)(image)
     assert len(outputs) == len(expected) == 2
     for got, want in zip(outputs, expected):
         torch.testing.assert_close(got, want, atol=1e-4, rtol=1e-4)
@@ -93,7 +96,9 @@ def test_second_stage_detections_agree_between_backends():
     net = _trained_looking(CenterBoxNet(DetectorConfig(OBJECTS,
                                                        verifier_channels=(8, 8, 16, 16))))
     image = _images(1, 480, 640)[0]
-    found = [BoxDetector(net, OBJECTS, 0.0, 2, backend, threads=1)(image)
+    found = [BoxDetector(net, OBJECTS, PipelineOptions(score_threshold=0.0, max_instances=2,
+                                                       inference_backend=backend,
+                                                       inference_threads=1))(image)
              for backend in ('torch', 'onnxruntime')]
     assert len(found[0]) == len(found[1]) == 2 * len(OBJECTS)
     for a, b in zip(*found):
@@ -110,8 +115,8 @@ def test_all_hypotheses_agree_between_backends_and_hold_the_best_scored(target, 
     image = _images(1, 480, 640)[0]
     detections = [Detection(name, 1.0, np.array([40.0 + 60 * k, 30.0, 130.0 + 60 * k, 150.0]))
                   for k, name in enumerate(OBJECTS[:5])]
-    found = [QNetRotationEstimator(net, backend, threads=1, all_hypotheses=True)(
-        image, camera, detections) for backend in ('torch', 'onnxruntime')]
+    found = [QNetRotationEstimator(net, options, all_hypotheses=True)(image, camera, detections)
+             for options in (TORCH, ONNX_1)]
     for hypotheses in found:
         assert hypotheses.rotations.shape == (5, count, 3, 3)
         assert hypotheses.log_probs.shape == (5, count)
@@ -119,18 +124,16 @@ def test_all_hypotheses_agree_between_backends_and_hold_the_best_scored(target, 
     np.testing.assert_allclose(found[0].log_probs, found[1].log_probs, atol=1e-4)
     np.testing.assert_allclose(np.exp(found[0].log_probs).sum(axis=1), 1.0, atol=1e-6)
     best = found[0].rotations[np.arange(5), found[0].log_probs.argmax(axis=1)]
-    np.testing.assert_allclose(QNetRotationEstimator(net, 'torch')(image, camera, detections),
+    np.testing.assert_allclose(QNetRotationEstimator(net, TORCH)(image, camera, detections),
                                best, atol=1e-5)
 
 
 def test_backend_choice_is_checked():
-    net = QNet(QNetConfig(OBJECTS)).eval()
-    example = (_images(1, 48, 48), np.array([0]))
     with pytest.raises(InputError, match='"tensorrt" is not one of onnxruntime, torch'):
-        make_runner(net, example, 'tensorrt')
-    with pytest.raises(InputError, match='CPU only, not on device "cuda"'):
-        make_runner(net, example, 'onnxruntime', device='cuda')
+        PipelineOptions(inference_backend='tensorrt')
+    with pytest.raises(InputError, match='onnxruntime runs on the CPU only'):
+        PipelineOptions(device='cuda')
     per_object = QNet(QNetConfig(OBJECTS, sharing='per_object')).eval()
     with pytest.raises(InputError, match='per_object Q-Net runs only on the torch backend'):
-        QNetRotationEstimator(per_object, backend='onnxruntime')
-    QNetRotationEstimator(per_object, backend='torch')
+        QNetRotationEstimator(per_object, PipelineOptions())
+    QNetRotationEstimator(per_object, TORCH)

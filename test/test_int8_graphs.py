@@ -22,12 +22,12 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
+from bbpose_ros.core.inference import int8_graphs
 from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
                                                    read_int8_graph)
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
                                                load_network)
-from bbpose_ros.core.pipeline import loader
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
@@ -38,6 +38,7 @@ pytestmark = pytest.mark.slow   # quantises the networks and runs them on real f
 SHIPPED_INT8 = int8_graph_path(DEFAULT_DETECTOR_WEIGHTS)
 SHIPPED_QNET_INT8 = int8_graph_path(DEFAULT_QNET_WEIGHTS)
 FRAMES = 8
+ONE_THREAD = PipelineOptions(inference_threads=1)
 # How close the int8 graphs come to fp32 on the first FRAMES dev frames depends on the CPU:
 # with int8 dot products (VNNI) ONNX Runtime's u8 x s8 products are exact; without them its
 # AVX2 kernels sum pairs of products in 16 bits, which saturate (a documented limitation),
@@ -91,20 +92,21 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
     weights = tmp_path / 'detector.pt'        # the shipped weights without their int8 graph
     shutil.copy(DEFAULT_DETECTOR_WEIGHTS, weights)
     auto, shipped = PipelineOptions(), DEFAULT_DETECTOR_WEIGHTS
-    monkeypatch.setattr(loader, 'cpu_has_int8_dot', lambda: True)
-    assert loader.int8_graph(auto, weights, 'detector') is None
-    assert loader.int8_graph(auto, shipped, 'detector') is not None
-    assert loader.int8_graph(auto, DEFAULT_QNET_WEIGHTS, 'qnet') is not None
+    choose = int8_graphs.choose_int8_graph
+    monkeypatch.setattr(int8_graphs, 'cpu_has_int8_dot', lambda: True)
+    assert choose(auto, weights, 'detector') is None
+    assert choose(auto, shipped, 'detector') is not None
+    assert choose(auto, DEFAULT_QNET_WEIGHTS, 'qnet') is not None
     with pytest.raises(InputError, match='not found'):
-        loader.int8_graph(PipelineOptions(inference_precision='int8'), weights, 'detector')
+        choose(PipelineOptions(inference_precision='int8'), weights, 'detector')
     torch_backend = PipelineOptions(inference_backend='torch')
-    assert loader.int8_graph(torch_backend, shipped, 'detector') is None
+    assert choose(torch_backend, shipped, 'detector') is None
     fp32 = PipelineOptions(inference_precision='fp32')
-    assert loader.int8_graph(fp32, shipped, 'detector') is None
-    monkeypatch.setattr(loader, 'cpu_has_int8_dot', lambda: False)
-    assert loader.int8_graph(auto, shipped, 'detector') is None
+    assert choose(fp32, shipped, 'detector') is None
+    monkeypatch.setattr(int8_graphs, 'cpu_has_int8_dot', lambda: False)
+    assert choose(auto, shipped, 'detector') is None
     int8 = PipelineOptions(inference_precision='int8')
-    assert loader.int8_graph(int8, shipped, 'detector') is not None
+    assert choose(int8, shipped, 'detector') is not None
     with pytest.raises(InputError, match='inference_precision / inference_backend'):
         PipelineOptions(inference_precision='int8', inference_backend='torch')
 
@@ -112,8 +114,8 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
 def test_int8_finds_what_fp32_finds_on_real_frames(network, lmo_frames):
     names = network.config.objects
     graph = read_int8_graph(SHIPPED_INT8, DEFAULT_DETECTOR_WEIGHTS, 'detector')
-    fp32 = BoxDetector(network, names, 0.3, 1, threads=1)
-    int8 = BoxDetector(network, names, 0.3, 1, threads=1, int8_graph=graph)
+    fp32 = BoxDetector(network, names, ONE_THREAD)
+    int8 = BoxDetector(network, names, ONE_THREAD, int8_graph=graph)
     assert (fp32.precision, int8.precision) == ('fp32', 'int8')
     matched, total = 0, 0
     for frame in lmo_frames[:FRAMES]:
@@ -131,9 +133,9 @@ def test_int8_finds_what_fp32_finds_on_real_frames(network, lmo_frames):
 
 def test_int8_qnet_turns_real_crops_as_fp32_does(qnet, lmo_frames):
     graph = read_int8_graph(SHIPPED_QNET_INT8, DEFAULT_QNET_WEIGHTS, 'qnet')
-    fp32 = QNetRotationEstimator(qnet, threads=1, all_hypotheses=True)
-    int8 = QNetRotationEstimator(qnet, threads=1, all_hypotheses=True, int8_graph=graph)
-    best = QNetRotationEstimator(qnet, threads=1, int8_graph=graph)
+    fp32 = QNetRotationEstimator(qnet, ONE_THREAD, all_hypotheses=True)
+    int8 = QNetRotationEstimator(qnet, ONE_THREAD, all_hypotheses=True, int8_graph=graph)
+    best = QNetRotationEstimator(qnet, ONE_THREAD, int8_graph=graph)
     assert (fp32.precision, int8.precision) == ('fp32', 'int8')
     angles = []
     for frame in lmo_frames[:FRAMES]:

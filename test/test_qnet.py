@@ -23,6 +23,7 @@ from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import (matrix_to_quat_wxyz, quat_wxyz_to_matrix,
                                                 ray_rotation, rotation_error_deg)
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.nets.quaternion import (multi_hypothesis_loss, QNormalization,
@@ -140,7 +141,7 @@ def test_winner_takes_all_loss():
 
 def test_allocentric_output_is_turned_egocentric():
     net = QNet(QNetConfig(OBJECTS, rotation_target='allocentric')).eval()
-    estimator = QNetRotationEstimator(net)
+    estimator = QNetRotationEstimator(net, PipelineOptions())
     image = np.random.default_rng(1).integers(0, 255, (480, 640, 3), dtype=np.uint8)
     box = np.array([40.0, 30.0, 120.0, 100.0])
     rotation = estimator(image, CAMERA, [Detection('ape', 1.0, box)])

@@ -36,8 +36,7 @@ import torch
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
-from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.inference.options import BACKENDS
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.images import ImageInput
 
 
@@ -172,31 +171,35 @@ class OnnxRuntimeRunner:
 
 
 def make_runner(network: nn.Module, example_inputs: Sequence[np.ndarray],
-                backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
-                threads: int | None = None,
+                options: PipelineOptions,
                 dynamic_batch: bool = False) -> TorchRunner | OnnxRuntimeRunner:
     """
-    Prepare ``network`` (eval mode) for inference with ``backend``.
+    Prepare ``network`` (eval mode) for inference as ``options`` say.
+
+    The options' ``inference_backend`` runs it, on ``device`` (torch) or with
+    ``inference_threads`` intra-op threads (ONNX Runtime; torch's are set for the process
+    by ``use_inference_threads``); PipelineOptions has checked that they go together.
 
     Args:
         network: the trained network.
         example_inputs: tuple of numpy arrays, (N, H, W, 3) uint8 images then the forward's
             other inputs (traced by 'onnxruntime').
-        backend: one of BACKENDS.
-        device: torch device; 'onnxruntime' runs on 'cpu' only.
-        threads: intra-op threads of ONNX Runtime (torch's are set with
-            ``torch.set_num_threads``); None: the backend's default.
+        options: the PipelineOptions.
         dynamic_batch: whether the batch size may differ from ``example_inputs``'.
 
-    Raises:
-        InputError: an unknown backend, or 'onnxruntime' with a device other than the CPU.
-
     """
-    if backend not in BACKENDS:
-        raise InputError(f'inference backend "{backend}" is not one of {", ".join(BACKENDS)}')
-    if backend == 'torch':
-        return TorchRunner(network, device)
-    if device != 'cpu':
-        raise InputError(f'inference backend onnxruntime runs on the CPU only, not on device '
-                         f'"{device}"; choose the torch backend for it')
-    return OnnxRuntimeRunner.from_network(network, example_inputs, dynamic_batch, threads)
+    if options.inference_backend == 'torch':
+        return TorchRunner(network, options.device)
+    return OnnxRuntimeRunner.from_network(network, example_inputs, dynamic_batch,
+                                          options.inference_threads)
+
+
+def graph_runner(model: bytes, options: PipelineOptions) -> OnnxRuntimeRunner:
+    """Run a serialised ONNX graph (an int8 graph) on ONNX Runtime, ``inference_threads``."""
+    return OnnxRuntimeRunner(model, options.inference_threads)
+
+
+def use_inference_threads(options: PipelineOptions) -> None:
+    """Set torch's intra-op threads of the process to ``inference_threads`` (0: leave them)."""
+    if options.inference_threads:
+        torch.set_num_threads(options.inference_threads)

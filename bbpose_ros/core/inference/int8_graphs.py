@@ -19,7 +19,7 @@ ONNX Runtime's static quantisation (``training.quantization`` makes the files) t
 convolutions and fully connected layers into integer ones; a CPU with int8 dot-product
 instructions (AVX-512 VNNI, AVX-VNNI) runs those faster than float ones, a CPU without them
 does not (docs/performance.md). ``precision: auto`` therefore takes the int8 graphs only on
-a CPU that has them.
+a CPU that has them (``choose_int8_graph``).
 
 A graph file (``<weights stem>_int8.onnx`` beside the float weight file) holds metadata
 naming the float file it was quantised from (its SHA-256): a graph quantised from other
@@ -41,6 +41,7 @@ from torch import nn
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import export_module
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.detector import DetectorConfig, peaks
 
 INT8_FORMAT = '1'
@@ -120,6 +121,27 @@ def read_int8_graph(path: Path | str, weights: Path | str, network: str):
                          f'{weights} (quantised from other weights); re-run "bbpose train '
                          f'quantize --network {network} --weights {weights}"')
     return model
+
+
+def choose_int8_graph(options: PipelineOptions, weights: Path | str, network: str):
+    """
+    Return the int8 graph ``network`` runs under ``options.inference_precision``, or None (float).
+
+    'int8' reads ``int8_graph_path(weights)`` and raises InputError when it is missing or
+    made from other weights; 'auto' takes it only with the onnxruntime backend on a CPU with
+    int8 dot products, and where it is missing or does not fit runs the float network.
+    """
+    if options.inference_precision == 'fp32' or options.inference_backend != 'onnxruntime':
+        return None
+    path = int8_graph_path(weights)
+    if options.inference_precision == 'int8':
+        return read_int8_graph(path, weights, network)
+    if not cpu_has_int8_dot():
+        return None
+    try:
+        return read_int8_graph(path, weights, network)
+    except InputError:
+        return None
 
 
 class _PeakSearch(nn.Module):

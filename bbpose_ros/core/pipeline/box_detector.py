@@ -25,10 +25,10 @@ from collections.abc import Collection
 
 import cv2
 import numpy as np
-import torch
 
-from bbpose_ros.core.inference.backends import make_runner, OnnxRuntimeRunner
+from bbpose_ros.core.inference.backends import graph_runner, make_runner
 from bbpose_ros.core.inference.int8_graphs import with_peak_search
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.detector import CenterBoxNet, peak_boxes, PeakOutputs
 from bbpose_ros.core.pipeline.poses import Detection
@@ -45,44 +45,39 @@ class BoxDetector:
     Args:
         network: a CenterBoxNet (a copy is prepared for inference by ``make_runner``).
         names: object names to report (a subset of the network's classes).
-        score_threshold: lowest detection score reported, 0..1
-            (``PipelineOptions.score_threshold``).
-        max_instances: most detections per object name (``PipelineOptions.max_instances``).
-        backend, device, threads: see ``backends.make_runner``.
-        int8_graph: the network's int8 graph (``int8_graphs.read_int8_graph``, checked
-            against the network's weight file by the caller), run by ONNX Runtime in place of
-            the float network; None: the float network. The second stage stays float.
+        options: the PipelineOptions: ``score_threshold`` and ``max_instances`` here, what
+            runs the networks in ``backends.make_runner``.
+        int8_graph: the network's int8 graph (``int8_graphs.choose_int8_graph``, checked
+            against the network's weight file), run by ONNX Runtime in place of the float
+            network; None: the float network. The second stage stays float.
 
     Attributes:
         precision: 'int8' or 'fp32', what runs the heatmap network.
 
     """
 
-    def __init__(self, network: CenterBoxNet, names: Collection[str],
-                 score_threshold: float, max_instances: int,
-                 backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
-                 threads: int | None = None, int8_graph=None) -> None:
+    def __init__(self, network: CenterBoxNet, names: Collection[str], options: PipelineOptions,
+                 int8_graph=None) -> None:
         self.config = network.config
+        self.options = options
         in_w, in_h = self.config.input_size
         self.blank = np.zeros((1, in_h, in_w, 3), np.uint8)
         self.grid_width = in_w // self.config.stride
         self.verifier = None
         if network.verifier is not None:
-            self.verifier = make_runner(network.verifier, self._blank_crops(1), backend,
-                                        device, threads, dynamic_batch=True)
-        count = self.config.candidates if network.verifier is not None else max_instances
+            self.verifier = make_runner(network.verifier, self._blank_crops(1), options,
+                                        dynamic_batch=True)
+        count = self.config.candidates if network.verifier is not None else \
+            options.max_instances
         count = min(count, self.grid_width * (in_h // self.config.stride))
         # The peak search runs inside the graph: cheaper than torch calls on its outputs.
         if int8_graph is None:
-            self.network = make_runner(PeakOutputs(network, count), (self.blank,), backend,
-                                       device, threads)
+            self.network = make_runner(PeakOutputs(network, count), (self.blank,), options)
         else:
-            self.network = OnnxRuntimeRunner(
-                with_peak_search(int8_graph, self.config, count), threads)
+            self.network = graph_runner(with_peak_search(int8_graph, self.config, count),
+                                        options)
         self.precision = 'fp32' if int8_graph is None else 'int8'
         self.wanted = np.array([name in set(names) for name in self.config.objects])
-        self.score_threshold = score_threshold
-        self.max_instances = max_instances
 
     def __call__(self, image_rgb: np.ndarray) -> list[Detection]:
         """Detect the wanted objects; highest score first."""
@@ -92,7 +87,7 @@ class BoxDetector:
         outputs = [x[0].cpu().numpy() for x in self.network(small[None])]
         if self.verifier is None:
             classes, scores, boxes = peak_boxes(*outputs, self.grid_width, self.config.stride,
-                                                self.score_threshold)
+                                                self.options.score_threshold)
         else:
             classes, scores, boxes = self._second_stage(small, outputs)
         scale = np.array([width / in_w, height / in_h] * 2)
@@ -114,8 +109,8 @@ class BoxDetector:
         scores, corrections = self.verifier(crops, classes.astype(np.int64))
         boxes = boxes + corrections.cpu().numpy() * (squares[:, 2:3] - squares[:, 0:1])
         boxes[:, 2:] = np.maximum(boxes[:, 2:], boxes[:, :2] + 1.0)   # never inside out
-        return best_per_class(classes, scores.cpu().numpy(), boxes, self.score_threshold,
-                              self.max_instances)
+        return best_per_class(classes, scores.cpu().numpy(), boxes,
+                              self.options.score_threshold, self.options.max_instances)
 
     def _blank_crops(self, count):
         size = self.config.verifier_crop_size

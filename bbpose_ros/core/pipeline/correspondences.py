@@ -36,6 +36,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import DensePose, pose_from_dense_maps
 from bbpose_ros.core.inference.backends import make_runner
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.dense import DenseNet
 from bbpose_ros.core.pipeline.poses import Detection
@@ -67,7 +68,7 @@ class DenseCorrespondenceEstimator:
     Args:
         network: a DenseNet (a copy is prepared for inference by ``make_runner``).
         models: {name: ObjectModel} of its objects (for the model boxes).
-        backend, device, threads: see ``backends.make_runner``.
+        options: the PipelineOptions: what runs the network (``backends.make_runner``).
         pnp_threads: threads the crops' PnP solves are spread over (0: one per core; 1:
             in the calling thread).
 
@@ -80,8 +81,7 @@ class DenseCorrespondenceEstimator:
     precision = 'fp32'
 
     def __init__(self, network: DenseNet, models: Mapping[str, ObjectModel],
-                 backend: str = 'onnxruntime', device: str | torch.device = 'cpu',
-                 threads: int | None = None, pnp_threads: int = 0) -> None:
+                 options: PipelineOptions, pnp_threads: int = 0) -> None:
         if pnp_threads < 0:
             raise InputError(f'PnP threads must be >= 0 (0: one per core), got {pnp_threads}')
         self.config = network.config
@@ -90,8 +90,7 @@ class DenseCorrespondenceEstimator:
             raise InputError(f'no model of {", ".join(missing)} for the dense net')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
         self.boxes = {name: model_box(models[name].vertices) for name in self.config.objects}
-        self.network = make_runner(network, self._blank_batch(1), backend, device, threads,
-                                   dynamic_batch=True)
+        self.network = make_runner(network, self._blank_batch(1), options, dynamic_batch=True)
         workers = pnp_threads or os.cpu_count() or 1
         self._pnp_pool = ThreadPoolExecutor(workers, 'dense-pnp') if workers > 1 else None
 

@@ -31,11 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import torch
-
-from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
-                                                   read_int8_graph)
+from bbpose_ros.core.inference.backends import use_inference_threads
+from bbpose_ros.core.inference.int8_graphs import choose_int8_graph
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import (DEFAULT_DENSE_WEIGHTS, DEFAULT_DETECTOR_WEIGHTS,
                                                DEFAULT_QNET_WEIGHTS, load_network)
@@ -103,9 +100,7 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         InputError: a missing, corrupt or mismatched weight file.
 
     """
-    threads = options.inference_threads or None
-    if threads is not None:
-        torch.set_num_threads(threads)
+    use_inference_threads(options)
     names = list(models)
     refiner = None
     if options.refine:
@@ -121,10 +116,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
     detector = rotation = correspondences = None
     if not given.boxes:
         detector_weights = weights.detector or DEFAULT_DETECTOR_WEIGHTS
-        detector = BoxDetector(
-            load_network(detector_weights, 'detector', names), names, options.score_threshold,
-            options.max_instances, options.inference_backend, options.device, threads,
-            int8_graph=int8_graph(options, detector_weights, 'detector'))
+        detector = BoxDetector(load_network(detector_weights, 'detector', names), names, options,
+                               choose_int8_graph(options, detector_weights, 'detector'))
         detector.warm_up()
     if options.uses_qnet and not given.rotations:
         qnet_weights = weights.qnet or DEFAULT_QNET_WEIGHTS
@@ -132,10 +125,10 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         # Every hypothesis is needed when they are ranked by box or mask or several refined.
         ranked = selector.weight > 0 or options.ranks_by_mask or \
             options.candidates_per_detection > 1
-        rotation = QNetRotationEstimator(qnet, options.inference_backend, options.device,
-                                         threads,
+        rotation = QNetRotationEstimator(qnet, options,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked,
-                                         int8_graph=int8_graph(options, qnet_weights, 'qnet'))
+                                         int8_graph=choose_int8_graph(options, qnet_weights,
+                                                                      'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
     if options.runs_dense(rotations_given=given.rotations):
         correspondences = load_correspondences(models, options, weights.dense)
@@ -152,32 +145,9 @@ def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOpt
                          ) -> DenseCorrespondenceEstimator:
     """Build the dense stage of ``models`` from a weight file (default: the shipped one)."""
     network = load_network(dense_weights or DEFAULT_DENSE_WEIGHTS, 'dense', list(models))
-    stage = DenseCorrespondenceEstimator(network, models, options.inference_backend,
-                                         options.device, options.inference_threads or None)
+    stage = DenseCorrespondenceEstimator(network, models, options)
     stage.warm_up(_warm_up_batch(models, options))
     return stage
-
-
-def int8_graph(options: PipelineOptions, weights: Path | str, network: str):
-    """
-    Return the int8 graph ``network`` runs under ``options.inference_precision``, or None (float).
-
-    'int8' reads ``int8_graphs.int8_graph_path(weights)`` and raises InputError when it is
-    missing or made from other weights; 'auto' takes it only with the onnxruntime backend on
-    a CPU with int8 dot products, and where it is missing or does not fit runs the float
-    network.
-    """
-    if options.inference_precision == 'fp32' or options.inference_backend != 'onnxruntime':
-        return None
-    path = int8_graph_path(weights)
-    if options.inference_precision == 'int8':
-        return read_int8_graph(path, weights, network)
-    if not cpu_has_int8_dot():
-        return None
-    try:
-        return read_int8_graph(path, weights, network)
-    except InputError:
-        return None
 
 
 def _warm_up_batch(models, options):

@@ -34,7 +34,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
-from bbpose_ros.core.inference.backends import make_runner, OnnxRuntimeRunner
+from bbpose_ros.core.inference.backends import graph_runner, make_runner
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.qnet import HypothesisOutputs, QNet
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
@@ -50,25 +51,24 @@ class QNetRotationEstimator:
     Args:
         network: a QNet (a copy is prepared for inference by ``make_runner``); a per_object
             one (its forward branches on the object indices) needs the torch backend.
-        backend, device, threads: see ``backends.make_runner``.
+        options: the PipelineOptions: what runs the network (``backends.make_runner``).
         all_hypotheses: return every hypothesis of a multi-hypothesis network as
             RotationHypotheses (N, H) instead of its best-scored rotations (N, 3, 3).
-        int8_graph: the network's int8 graph (``int8_graphs.read_int8_graph``, checked
-            against its weight file by the caller), run by ONNX Runtime in place of the
-            float network; None: the float network.
+        int8_graph: the network's int8 graph (``int8_graphs.choose_int8_graph``, checked
+            against its weight file), run by ONNX Runtime in place of the float network;
+            None: the float network.
 
     Attributes:
         precision: 'int8' or 'fp32', what runs the network.
 
     """
 
-    def __init__(self, network: QNet, backend: str = 'onnxruntime',
-                 device: str | torch.device = 'cpu', threads: int | None = None,
-                 all_hypotheses: bool = False, int8_graph=None) -> None:
+    def __init__(self, network: QNet, options: PipelineOptions, all_hypotheses: bool = False,
+                 int8_graph=None) -> None:
         self.config = network.config
-        if self.config.sharing == 'per_object' and backend != 'torch':
+        if self.config.sharing == 'per_object' and options.inference_backend != 'torch':
             raise InputError(f'a per_object Q-Net runs only on the torch backend, not on '
-                             f'{backend}')
+                             f'{options.inference_backend}')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
         self.all_hypotheses = all_hypotheses
         self.precision = 'fp32' if int8_graph is None else 'int8'
@@ -77,10 +77,9 @@ class QNetRotationEstimator:
         self._pick_best = int8_graph is not None and not all_hypotheses
         if int8_graph is None:
             self.network = make_runner(run_network(network, all_hypotheses),
-                                       self._blank_batch(1), backend, device, threads,
-                                       dynamic_batch=True)
+                                       self._blank_batch(1), options, dynamic_batch=True)
         else:
-            self.network = OnnxRuntimeRunner(int8_graph.SerializeToString(), threads)
+            self.network = graph_runner(int8_graph.SerializeToString(), options)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  detections: Sequence[Detection]) -> np.ndarray | RotationHypotheses:

@@ -80,7 +80,7 @@ class RealCrops:
 
     def rotation_errors(self, network: QNet) -> np.ndarray:
         """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
-        estimate = QNetRotationEstimator(network, backend='torch')
+        estimate = QNetRotationEstimator(network, PipelineOptions(inference_backend='torch'))
         errors = []
         for frame, image, instances in self.items:      # the runner is in inference mode
             detections = [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
@@ -118,9 +118,8 @@ class RealDetections:
 
     def figures(self, network: CenterBoxNet) -> dict[str, float]:
         """Mean recall at IoU 0.5 (visible fraction >= 0.3) and AP50 of a CenterBoxNet."""
-        shipped = PipelineOptions()
-        detector = BoxDetector(network, self.objects, shipped.score_threshold,
-                               shipped.max_instances, backend='torch')
+        detector = BoxDetector(network, self.objects,
+                               PipelineOptions(inference_backend='torch'))
         report = score_detections(self.frames, [detector(image) for image in self.images],
                                   self.objects)
         return {'real_recall50_visib30': report['mean']['recall_iou50_visib30'],
