@@ -35,10 +35,10 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.weights import load_network, WEIGHTS_DIR
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
-from bbpose_ros.core.training.new_object import RowTraining, with_objects
-from bbpose_ros.core.training.teach_object import (AddObject, AddObjectSettings,
-                                                   axis_symmetries, INPLANE_RANGE_DEG,
-                                                   NewObject)
+from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
+                                                        AddObjectSettings, axis_symmetries,
+                                                        INPLANE_RANGE_DEG)
+from bbpose_ros.core.training.object_rows import RowTraining, with_objects
 from bbpose_ros.ros.conversions import rgb_to_image
 
 pytestmark = pytest.mark.slow
@@ -64,7 +64,7 @@ def red_box(tmp_path_factory):
 @pytest.fixture(scope='module')
 def added(lmo_root, red_box, tmp_path_factory):
     out = tmp_path_factory.mktemp('added')
-    AddObject(NewObject(NAME, red_box, np.zeros((0, 4, 4))), base_weight_files(WEIGHTS_DIR),
+    AddObject(AddedObject(NAME, red_box, np.zeros((0, 4, 4))), base_weight_files(WEIGHTS_DIR),
               lmo_root, out, TINY, progress=False, log=lambda line: None).run()
     return out
 
@@ -90,18 +90,18 @@ def test_the_networks_grow_by_one_object_and_keep_the_others(added):
 def test_a_second_run_resumes_and_other_inputs_are_refused(lmo_root, red_box, added):
     before = (added / 'detector.pt').stat().st_mtime_ns
     lines = []
-    AddObject(NewObject(NAME, red_box, np.zeros((0, 4, 4))), base_weight_files(WEIGHTS_DIR),
+    AddObject(AddedObject(NAME, red_box, np.zeros((0, 4, 4))), base_weight_files(WEIGHTS_DIR),
               lmo_root, added, TINY, progress=False, log=lines.append).run()
     assert (added / 'detector.pt').stat().st_mtime_ns == before
     assert any(line.startswith('[detector] done before') for line in lines)
     with pytest.raises(InputError, match='symmetries'):
-        AddObject(NewObject(NAME, red_box, axis_symmetries(red_box, 'z', 2)),
+        AddObject(AddedObject(NAME, red_box, axis_symmetries(red_box, 'z', 2)),
                   base_weight_files(WEIGHTS_DIR), lmo_root, added, TINY).run()
 
 
 def test_a_known_name_is_refused(lmo_root, red_box, tmp_path):
     with pytest.raises(InputError, match="'duck' already"):
-        AddObject(NewObject('duck', red_box, np.zeros((0, 4, 4))),
+        AddObject(AddedObject('duck', red_box, np.zeros((0, 4, 4))),
                   base_weight_files(WEIGHTS_DIR), lmo_root, tmp_path, TINY)
 
 

@@ -17,7 +17,7 @@
 
 The mesh is checked as ``bbpose check-mesh`` checks it; the shipped networks (or those of
 ``--base-weights``) get one more object, trained on table-top renders with everything they
-already know frozen (``core.training.teach_object``). ``bbpose remove-object`` drops an
+already know frozen (``core.training.add_object_stages``). ``bbpose remove-object`` drops an
 object's rows instead: the base of a leave-one-out measurement.
 """
 
@@ -99,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.data.mesh_check import check_mesh
     from bbpose_ros.core.data.models import check_names
     from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
-    from bbpose_ros.core.training.teach_object import (AddObject, AddObjectSettings,
-                                                       axis_symmetries, NewObject)
+    from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
+                                                            AddObjectSettings, axis_symmetries)
     check_names({1: args.name}, '--name')
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -120,8 +120,9 @@ def run(args: argparse.Namespace) -> int:
         if getattr(settings, name) < 1:
             raise InputError(f'--{name} must be at least 1')
     backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
-    task = AddObject(NewObject(args.name, mesh, symmetries), base_weight_files(args.base_weights),
-                     args.dataset, args.out, settings, backgrounds, command=' '.join(sys.argv))
+    task = AddObject(AddedObject(args.name, mesh, symmetries),
+                     base_weight_files(args.base_weights), args.dataset, args.out, settings,
+                     backgrounds, command=' '.join(sys.argv))
     report = task.run()
     print(f'\n{args.name} added in {report["seconds"]["total"] / 60:.1f} min '
           f'({os.cpu_count()} CPU cores); on held-out renders:')
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 def run_remove(args: argparse.Namespace) -> int:
     """Run ``bbpose remove-object``; returns the exit status."""
     from bbpose_ros.core.inference.weights import load_network, save_weights
-    from bbpose_ros.core.training.new_object import with_objects
+    from bbpose_ros.core.training.object_rows import with_objects
     files = base_weight_files(args.base_weights)
     for kind, path in files.items():
         target = args.out / NETWORK_FILES[kind]

@@ -24,7 +24,7 @@ first stage whose output is missing (the renders resume shard by shard):
    among the known ones and clutter (only the new object labelled); ``renders/crops``:
    crops around the new object alone at the dense net's crop size, with dense targets.
 3. ``detector.pt``, ``qnet.pt``, ``dense.pt``: the base networks with a block of rows for
-   the new object, trained on the renders with everything else frozen (``new_object``).
+   the new object, trained on the renders with everything else frozen (``object_rows``).
 4. ``detector_int8.onnx``, ``qnet_int8.onnx``: their int8 graphs, calibrated on the renders.
 5. ``preview.png`` (rendered scenes with boxes, crops as Q-Net sees them), ``params.yaml``
    (the node's parameters) and ``report.json`` (stage times, settings, the figures on the
@@ -62,13 +62,12 @@ from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.training.cache import build_cache, SHARD_SIZE, TrainingCache
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, SHARD_SIZE as \
     CROP_SHARD_SIZE
-from bbpose_ros.core.training.dense_training import DenseTrainSettings
-from bbpose_ros.core.training.detector_training import DetectorTrainSettings
-from bbpose_ros.core.training.new_object import fit_new_rows, RowTraining, with_objects
-from bbpose_ros.core.training.qnet_training import QNetTrainSettings
+from bbpose_ros.core.training.object_rows import fit_new_rows, RowTraining, with_objects
 from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
+from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
+                                               QNetTrainSettings)
 
 NETWORKS = ('detector', 'qnet', 'dense')
 # Rolls of the rendered objects about the optical axis, degrees: upright objects seen by a
@@ -113,7 +112,7 @@ class AddObjectSettings:
 
 
 @dataclass(frozen=True)
-class NewObject:
+class AddedObject:
     """
     The object to add.
 
@@ -160,7 +159,7 @@ class AddObject:
     The stages of adding ``new`` to the networks of ``base`` into ``out`` (module docstring).
 
     Args:
-        new: the NewObject.
+        new: the AddedObject.
         base_weights: {'detector' | 'qnet' | 'dense': weight file} to extend.
         base_dataset: BOP dataset with the meshes of the base networks' objects.
         out: output folder.
@@ -172,7 +171,7 @@ class AddObject:
 
     """
 
-    def __init__(self, new: NewObject, base_weights: Mapping[str, Path], base_dataset: Path,
+    def __init__(self, new: AddedObject, base_weights: Mapping[str, Path], base_dataset: Path,
                  out: Path, settings: AddObjectSettings, backgrounds=None,
                  progress: bool = True, log: Callable[[str], None] = print,
                  command: str = '') -> None:
