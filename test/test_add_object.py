@@ -24,6 +24,7 @@ from std_msgs.msg import Header
 from test_ros_support import GraphClient, NodeLog, use_private_domain
 import torch
 import trimesh
+import yaml
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.add_object import base_weight_files
@@ -37,11 +38,11 @@ from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
                                                         AddObjectSettings, axis_symmetries,
-                                                        INPLANE_RANGE_DEG)
+                                                        INPLANE_RANGE_DEG, NETWORKS,
+                                                        node_parameters, write_params_file)
 from bbpose_ros.core.training.object_rows import RowTraining, with_objects
 from bbpose_ros.ros.conversions import rgb_to_image
-
-pytestmark = pytest.mark.slow
+from bbpose_ros.ros.params import check_value
 
 NAME = 'redbox'
 # Small enough for CI, large enough for the detector to find the box in its own scenes.
@@ -69,6 +70,7 @@ def added(lmo_root, red_box, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow   # renders and trains
 def test_the_networks_grow_by_one_object_and_keep_the_others(added):
     report = json.loads((added / 'report.json').read_text())
     assert report['objects'][-1] == NAME
@@ -87,6 +89,7 @@ def test_the_networks_grow_by_one_object_and_keep_the_others(added):
     assert NAME in load_bop_models(added / 'dataset')
 
 
+@pytest.mark.slow   # renders and trains
 def test_a_second_run_resumes_and_other_inputs_are_refused(lmo_root, red_box, added):
     before = (added / 'detector.pt').stat().st_mtime_ns
     lines = []
@@ -99,12 +102,14 @@ def test_a_second_run_resumes_and_other_inputs_are_refused(lmo_root, red_box, ad
                   base_weight_files(WEIGHTS_DIR), lmo_root, added, TINY).run()
 
 
+@pytest.mark.slow   # loads the three networks
 def test_a_known_name_is_refused(lmo_root, red_box, tmp_path):
     with pytest.raises(InputError, match="'duck' already"):
         AddObject(AddedObject('duck', red_box, np.zeros((0, 4, 4))),
                   base_weight_files(WEIGHTS_DIR), lmo_root, tmp_path, TINY)
 
 
+@pytest.mark.slow   # loads Q-Net
 def test_with_objects_drops_rows_and_keeps_the_rest():
     qnet = load_network(WEIGHTS_DIR / 'qnet.pt', 'qnet').eval()
     without = with_objects(qnet, [n for n in qnet.config.objects if n != 'ape']).eval()
@@ -114,6 +119,19 @@ def test_with_objects_drops_rows_and_keeps_the_rest():
         assert torch.equal(qnet(crops, index), without(crops, index - 1))
 
 
+def test_the_params_file_sets_node_parameters_as_the_node_declares_them(tmp_path):
+    (tmp_path / 'dataset' / 'models').mkdir(parents=True)
+    for kind in NETWORKS:
+        (tmp_path / f'{kind}.pt').touch()
+    parameters = node_parameters(tmp_path, ['ape', NAME])
+    for name, value in parameters.items():
+        check_value(name, value)      # ros/params.py's name, type and check
+    write_params_file(tmp_path / 'params.yaml', parameters)
+    written = yaml.safe_load((tmp_path / 'params.yaml').read_text())
+    assert written == {'/**': {'ros__parameters': parameters}}
+
+
+@pytest.mark.slow   # renders, trains and starts the node
 def test_the_node_started_with_the_params_file_reports_the_new_object(added):
     """The node, with nothing but params.yaml, publishes the box's pose on a rendered frame."""
     models = load_bop_models(added / 'dataset')

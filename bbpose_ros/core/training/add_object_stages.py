@@ -34,7 +34,7 @@ first stage whose output is missing (the renders resume shard by shard):
 refused rather than mixing two objects' files.
 """
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 import hashlib
@@ -368,15 +368,30 @@ class AddObject:
 
     def _params(self):
         """Write ``params.yaml``: the node's objects, dataset and weight files."""
-        out = self.out.resolve()
-        lines = ['# bbpose_node parameters written by bbpose add-object (config/bbpose.yaml',
-                 '# documents every parameter; these override its defaults).',
-                 '/**:', '  ros__parameters:',
-                 f'    objects: [{", ".join(self.objects)}]',
-                 f"    dataset_dir: '{out / 'dataset'}'"]
-        lines += [f"    {kind}_weights: '{out / f'{kind}.pt'}'" for kind in NETWORKS]
-        with atomic_output(self.out / 'params.yaml') as tmp:
-            tmp.write_text('\n'.join(lines) + '\n')
+        write_params_file(self.out / 'params.yaml', node_parameters(self.out, self.objects))
+
+
+def node_parameters(out: Path, objects: Sequence[str]) -> dict[str, Any]:
+    """
+    {name: value} of the node's parameters that load the objects and networks in ``out``.
+
+    They are the node's own parameters, declared in ros/params.py (``PARAMETERS``), which
+    the core may not import: test_add_object.py holds these names and values to that
+    declaration. Every other parameter keeps its default (config/bbpose.yaml).
+    """
+    out = Path(out).resolve()
+    return {'objects': list(objects), 'dataset_dir': str(out / 'dataset'),
+            **{f'{kind}_weights': str(out / f'{kind}.pt') for kind in NETWORKS}}
+
+
+def write_params_file(path: Path, parameters: Mapping[str, Any]) -> None:
+    """Write a node parameters file of ``parameters`` ({name: value}; JSON values are YAML)."""
+    lines = ['# bbpose_node parameters written by bbpose add-object; the others keep their',
+             '# defaults (config/bbpose.yaml documents every parameter).',
+             '/**:', '  ros__parameters:']
+    lines += [f'    {name}: {json.dumps(value)}' for name, value in parameters.items()]
+    with atomic_output(path) as tmp:
+        tmp.write_text('\n'.join(lines) + '\n')
 
 
 def _sha256_of_arrays(*arrays: np.ndarray) -> str:
