@@ -42,7 +42,7 @@ from bbpose_ros.ros.param_specs import APPLIES
 from bbpose_ros.ros.params import check_value, checked_options, declare_parameters
 from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
 from bbpose_ros.ros.params import read_params_file
-from bbpose_ros.ros.throttle import KeyedThrottle
+from bbpose_ros.ros.throttle import KeyedThrottle, ProblemLog
 
 SECOND = 1_000_000_000
 
@@ -138,6 +138,26 @@ def test_throttle_forgets_expired_keys_beyond_its_bound():
         assert throttle.allow(f'data has {k} bytes')
     assert len(throttle) <= 10
     assert not throttle.allow('data has 99 bytes')     # a live key is kept
+
+
+def test_problems_are_all_counted_and_logged_throttled_per_counter_and_key():
+    counted, logged = [], []
+
+    class Logger:
+        def warning(self, text):
+            logged.append(('warning', text))
+
+        def error(self, text):
+            logged.append(('error', text))
+
+    problems = ProblemLog(counted.append, Logger(), KeyedThrottle(clock=lambda: 0.0))
+    for _ in range(3):
+        problems.drop('bad_image', 'encoding', 'bad encoding')
+    problems.drop('bad_image', 'step', 'bad step')
+    problems.warn('unpaired', 'encoding', 'no camera_info')
+    assert counted == ['bad_image'] * 4 + ['unpaired']
+    assert logged == [('error', 'bad encoding'), ('error', 'bad step'),
+                      ('warning', 'no camera_info')]
 
 
 def test_markers_structure(lmo_models):

@@ -18,12 +18,14 @@ Log throttling per kind of problem.
 rclpy's ``throttle_duration_sec`` throttles per call site, so a second, different bad input
 arriving soon after a first one would go unreported. Here each key (e.g. the field that
 was wrong) has its own period: a repeated problem is logged once per period, a new one at
-once.
+once. ``ProblemLog`` counts every problem (for /diagnostics) and logs it so throttled.
 """
 
 from collections.abc import Callable, Hashable
 import threading
 import time
+
+from rclpy.impl.rcutils_logger import RcutilsLogger
 
 
 class KeyedThrottle:
@@ -63,3 +65,33 @@ class KeyedThrottle:
     def __len__(self) -> int:
         """Return how many keys are held."""
         return len(self._last)
+
+
+class ProblemLog:
+    """
+    Counts each problem and logs it, throttled per (counter, key).
+
+    Args:
+        count: adds one to a counter (``NodeStats.count``).
+        logger: the node's logger.
+        throttle: decides what is logged now; a KeyedThrottle of its default period if None.
+
+    """
+
+    def __init__(self, count: Callable[[str], None], logger: RcutilsLogger,
+                 throttle: KeyedThrottle | None = None) -> None:
+        self._count = count
+        self._logger = logger
+        self._throttle = KeyedThrottle() if throttle is None else throttle
+
+    def warn(self, counter: str, key: str, text: str) -> None:
+        """Count ``counter``; log ``text`` as a warning, throttled per (counter, key)."""
+        self._count(counter)
+        if self._throttle.allow(f'{counter}:{key}'):
+            self._logger.warning(text)
+
+    def drop(self, counter: str, key: str, text: str) -> None:
+        """Count a frame dropped for bad input; log ``text`` as an error, throttled."""
+        self._count(counter)
+        if self._throttle.allow(f'{counter}:{key}'):
+            self._logger.error(text)
