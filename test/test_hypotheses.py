@@ -47,7 +47,7 @@ def real_hypotheses(frames, models):
 
 
 def test_the_box_picks_out_the_true_rotation_among_turned_ones(lmo_frames, lmo_models):
-    selector = HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)
+    selector = HypothesisSelector(lmo_models, SHIPPED)
     right = []
     for frame, detections, hypotheses in real_hypotheses(lmo_frames, lmo_models):
         chosen = selector(frame.camera, detections, hypotheses)
@@ -62,7 +62,8 @@ def test_zero_weight_keeps_the_likeliest_hypothesis(lmo_frames, lmo_models):
     log_probs = hypotheses.log_probs.copy()
     log_probs[:, 2] += 1.0                    # a decoy is the network's favourite
     favoured = RotationHypotheses(hypotheses.rotations, log_probs)
-    chosen = HypothesisSelector(lmo_models, weight=0.0)(frame.camera, detections, favoured)
+    selector = HypothesisSelector(lmo_models, PipelineOptions(box_consistency_weight=0.0))
+    chosen = selector(frame.camera, detections, favoured)
     np.testing.assert_array_equal(chosen, hypotheses.rotations[:, 2])
 
 
@@ -73,7 +74,7 @@ def test_pipeline_chooses_a_hypothesis_before_the_translation(lmo_frames, lmo_mo
     result = pipeline.estimate(frame.load_image(), frame.camera, detections)
     assert 'hypothesis_selection' in result.timings_ms
     chosen = np.stack([pose.rotation for pose in result.poses])
-    selector = HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)
+    selector = HypothesisSelector(lmo_models, SHIPPED)
     np.testing.assert_array_equal(chosen, selector(frame.camera, detections, hypotheses))
 
 
@@ -102,5 +103,5 @@ def test_bad_weight_is_refused(weight):
 def test_hypotheses_must_match_the_detections(lmo_frames, lmo_models):
     frame, detections, hypotheses = next(real_hypotheses(lmo_frames, lmo_models))
     with pytest.raises(InputError, match=f'for {len(detections) - 1} detections'):
-        HypothesisSelector(lmo_models, SHIPPED.box_consistency_weight)(
+        HypothesisSelector(lmo_models, SHIPPED)(
             frame.camera, detections[1:], hypotheses)

@@ -98,8 +98,8 @@ def test_the_mask_term_overrules_a_favoured_wrong_hypothesis(lmo_frames, lmo_mod
         detections = [Detection(instance.object_name, 1.0, instance.box_uv)]
         masks = ForegroundMasks(mask[None], square[None])
         for weight in picked_truth:
-            selector = HypothesisSelector(lmo_models, weight=0.0, mask_weight=weight,
-                                          agreement=agreement)
+            selector = HypothesisSelector(lmo_models, PipelineOptions(
+                box_consistency_weight=0.0, mask_consistency_weight=weight), agreement)
             chosen = selector.ranked(frame.camera, detections, hypotheses, 1, masks)[0, 0]
             picked_truth[weight].append(np.allclose(chosen, instance.rotation))
     assert len(cases) > 20
@@ -107,9 +107,7 @@ def test_the_mask_term_overrules_a_favoured_wrong_hypothesis(lmo_frames, lmo_mod
     assert np.mean(picked_truth[20.0]) > 0.8
 
 
-def test_bad_mask_settings_are_refused(lmo_models, agreement, lmo_frames):
-    with pytest.raises(InputError, match='needs a MaskAgreement'):
-        HypothesisSelector(lmo_models, 0.0, mask_weight=5.0)
+def test_bad_mask_settings_are_refused(agreement, lmo_frames):
     with pytest.raises(InputError, match='mask_consistency_weight'):
         PipelineOptions(mask_consistency_weight=-1.0)
     frame = lmo_frames[0]

@@ -31,8 +31,8 @@ from bbpose_ros.core.pipeline.correspondences import DenseMaps
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
-from bbpose_ros.core.pipeline.refinement import PoseRefiner, refiner_config
-from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
+from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
@@ -47,11 +47,12 @@ pytestmark = pytest.mark.slow   # viewpoint models of every mesh, real frames re
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)
 NAMES = ('ape', 'driller', 'duck', 'holepuncher')
 BLANK = np.zeros((CAMERA.height, CAMERA.width, 3), np.uint8)
+SHIPPED = PipelineOptions()
 
 
 def refine_one(model, image, camera, rotation, translation, config=None):
     """Refine one pose of one object with ``refine_poses``; its Refinement."""
-    return refine_poses(color_bins(image), camera, [model], [rotation], [translation],
+    return refine_poses(color_bins(image), camera, [model], [rotation], [translation], SHIPPED,
                         config or RefinerConfig())[0]
 
 
@@ -176,9 +177,9 @@ def test_a_predicted_mask_aligns_where_colours_cannot(viewpoint_models, lmo_mode
     bins = color_bins(np.full((CAMERA.height, CAMERA.width, 3), 128, np.uint8))  # no colours
     masks = mask_over_box(silhouette, size=64)
     starts = [perturb_pose(rotation, translation, 5.0, 0.010, rng) for _ in range(4)]
-    guided = refine_poses(bins, CAMERA, [models[name]] * 4, *zip(*starts), RefinerConfig(),
+    guided = refine_poses(bins, CAMERA, [models[name]] * 4, *zip(*starts), SHIPPED,
                           masks=masks.take([0] * 4))
-    alone = refine_poses(bins, CAMERA, [models[name]] * 4, *zip(*starts), RefinerConfig())
+    alone = refine_poses(bins, CAMERA, [models[name]] * 4, *zip(*starts), SHIPPED)
     close = [rotation_error_deg(r.rotation, rotation) < 2.0
              and np.linalg.norm(r.translation - translation) < 0.005 for r in guided]
     # Most starts align (the refiner's basin, not the mask, loses the others) and score high.
@@ -240,8 +241,8 @@ def test_pipeline_refines_and_rejects_by_score(viewpoint_models, lmo_models, lmo
     truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.5]
     detections = [Detection(i.object_name, 1.0, i.box_uv) for i in truths]
     rotations = np.stack([i.rotation for i in truths])
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, PipelineOptions(),
-                            refiner=PoseRefiner(models))
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, SHIPPED,
+                            refiner=PoseRefiner(models, SHIPPED))
     result = pipeline.estimate(image, frame.camera, detections, rotations)
     assert 'refinement' in result.timings_ms
     assert len(result.poses) == len(truths)
@@ -249,7 +250,7 @@ def test_pipeline_refines_and_rejects_by_score(viewpoint_models, lmo_models, lmo
                for p in result.poses)
     # A pose far from any object is scored low, and a threshold drops it.
     wrong = [PoseEstimate(detections[0], rotations[0], np.array([0.25, -0.15, 0.6]))]
-    strict = PoseRefiner(models, min_score=0.4)
+    strict = PoseRefiner(models, PipelineOptions(refine_min_score=0.4))
     assert strict(image, frame.camera, wrong) == []
     assert len(strict(image, frame.camera, result.poses[:1])) == 1
 
@@ -268,12 +269,12 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
                        for angle, offset in ((60.0, 0.05), (5.0, 0.01))])
     # Without starts given back (keep_better_start), the survivor of the screening continues
     # where it stopped: the same pose as refining that candidate straight through.
-    config = dataclasses.replace(RefinerConfig(), keep_better_start=False)
-    refiner = PoseRefiner(models, config, screening_iterations=3)
+    config = RefinerConfig(keep_better_start=False)
+    refiner = PoseRefiner(models, SHIPPED, config, screening_iterations=3)
     assert refiner.screening_iterations < refiner.config.iterations
     kept = refiner.best_of(image, frame.camera, groups)
     assert len(kept) == len(groups)
-    straight = PoseRefiner(models, config)
+    straight = PoseRefiner(models, SHIPPED, config)
     for pose, group in zip(kept, groups):
         ends = [straight(image, frame.camera, [candidate])[0] for candidate in group]
         assert any(np.allclose(pose.rotation, end.rotation, atol=1e-9)
@@ -290,9 +291,9 @@ def test_a_refinement_that_lowers_the_score_gives_the_start_back(viewpoint_model
     truths = [i for i in frame.instances if i.object_name in models]
     args = (bins, frame.camera, [models[t.object_name] for t in truths],
             [t.rotation for t in truths], [t.translation for t in truths])
-    at_start = refine_poses(*args, RefinerConfig(), iterations=0)
-    kept = refine_poses(*args, RefinerConfig())
-    moved = refine_poses(*args, dataclasses.replace(RefinerConfig(), keep_better_start=False))
+    at_start = refine_poses(*args, SHIPPED, iterations=0)
+    kept = refine_poses(*args, SHIPPED)
+    moved = refine_poses(*args, SHIPPED, RefinerConfig(keep_better_start=False))
     for start, keep, move, truth in zip(at_start, kept, moved, truths):
         assert keep.score == max(start.score, move.score)
         if start.score > move.score:
@@ -323,14 +324,12 @@ def test_the_mask_chooses_the_candidate_the_score_misjudges(viewpoint_models, lm
                                 *perturb_pose(t.rotation, t.translation, angle, 0.01, rng))
                    for angle in (50.0, 5.0)] for t in truths]
         for weight in picked:
-            kept = PoseRefiner(models, mask_choice_weight=weight).best_of(
+            kept = PoseRefiner(models, PipelineOptions(refine_mask_choice_weight=weight)).best_of(
                 image, frame.camera, groups, choice_masks=masks)
             picked[weight].extend(rotation_error_deg(p.rotation, t.rotation) < 10.0
                                   for p, t in zip(kept, truths))
     assert len(picked[0.0]) >= 15
     assert np.mean(picked[20.0]) > np.mean(picked[0.0])
-    with pytest.raises(InputError, match='mask_choice_weight must be >= 0'):
-        PoseRefiner(models, mask_choice_weight=-1.0)
     with pytest.raises(InputError, match='refine_mask_choice_weight'):
         PipelineOptions(refine_mask_choice_weight=-1.0)
 
@@ -346,13 +345,13 @@ def test_a_refinement_that_lowers_the_merit_gives_the_start_back(viewpoint_model
         masks = exact_amodal_masks(frame, truths, lmo_models)
         starts = [PoseEstimate(Detection(t.object_name, 1.0, t.box_uv), t.rotation,
                                t.translation) for t in truths]
-        kept = PoseRefiner(models, mask_choice_weight=weight)(image, frame.camera, starts,
-                                                              choice_masks=masks)
-        moved = PoseRefiner(models)(image, frame.camera, starts)
+        kept = PoseRefiner(models, PipelineOptions(refine_mask_choice_weight=weight))(
+            image, frame.camera, starts, choice_masks=masks)
+        moved = PoseRefiner(models, SHIPPED)(image, frame.camera, starts)
         names = [t.object_name for t in truths]
         merit_start = np.array([r.score for r in refine_poses(
             color_bins(image), frame.camera, [models[n] for n in names],
-            [t.rotation for t in truths], [t.translation for t in truths], RefinerConfig(),
+            [t.rotation for t in truths], [t.translation for t in truths], SHIPPED,
             iterations=0, instances=range(len(truths)))]) + weight * agreement(
             frame.camera, names, [t.rotation for t in truths],
             [t.translation for t in truths], masks)
@@ -371,8 +370,9 @@ def test_a_refinement_that_lowers_the_merit_gives_the_start_back(viewpoint_model
 class ScriptedRefiner(PoseRefiner):
     """A PoseRefiner whose refinements and mask agreements are given: the choice alone."""
 
-    def __init__(self, models, runs, agreement, **kwargs):
-        super().__init__(models, **kwargs)
+    def __init__(self, models, runs, agreement, screening_iterations):
+        super().__init__(models, PipelineOptions(refine_mask_choice_weight=8.0),
+                         screening_iterations=screening_iterations)
         self.runs = list(runs)      # per call of _refine, its list of Refinement
         self._agreement = lambda camera, names, rotations, translations, masks: np.array(
             [agreement(t) for t in translations])
@@ -391,7 +391,7 @@ def test_the_mask_merit_never_prefers_a_failed_candidate(viewpoint_models):
     # The failed candidate's start agrees with the mask best; the one that ran is kept.
     agreement = {0.1: 0.9, 0.2: 0.1, 0.25: 0.5}
     refiner = ScriptedRefiner(models, [[failed, ran]], lambda t: agreement[round(t[0], 2)],
-                              mask_choice_weight=8.0, screening_iterations=100)
+                              screening_iterations=100)
     kept = refiner.best_of(BLANK, CAMERA, [starts], choice_masks=masks)
     assert kept[0].source == starts[1].source and kept[0].refinement_score == 0.3
     np.testing.assert_array_equal(kept[0].translation, ran.translation)
@@ -408,13 +408,13 @@ def test_a_screened_candidate_is_judged_against_its_own_start(viewpoint_models):
     ending = [Refinement(np.eye(3), np.array([0.16, 0.0, 1.0]), 0.7, 'ok', start_score=0.55)]
     masks = ForegroundMasks(np.zeros((1, 4, 4)), np.zeros((1, 4)))
     refiner = ScriptedRefiner(models, [screening, ending], lambda t: 0.5,
-                              mask_choice_weight=8.0, screening_iterations=6)
+                              screening_iterations=6)
     kept = refiner.best_of(BLANK, CAMERA, [starts], choice_masks=masks)
     np.testing.assert_array_equal(kept[0].translation, starts[0].translation)
     assert kept[0].refinement_score == 0.8
     # Without masks the end is kept, as before the merit.
     refiner = ScriptedRefiner(models, [screening, ending], lambda t: 0.5,
-                              mask_choice_weight=8.0, screening_iterations=6)
+                              screening_iterations=6)
     kept = refiner.best_of(BLANK, CAMERA, [starts])
     np.testing.assert_array_equal(kept[0].translation, ending[0].translation)
 
@@ -434,7 +434,8 @@ def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models)
                   for axis in ([0.05, 0.0, 0.0], [0.0, 0.05, 0.0])]
     alone = refine_one(models['duck'], crop, window, candidates[0].rotation, translation)
     assert alone.status == 'too_few_lines'
-    screened = PoseRefiner(models, screening_iterations=3).best_of(crop, window, [candidates])
+    screening = PoseRefiner(models, SHIPPED, screening_iterations=3)
+    screened = screening.best_of(crop, window, [candidates])
     assert len(screened) == 1 and screened[0].refinement_score == 0.0
     np.testing.assert_array_equal(screened[0].rotation, candidates[0].rotation)
 
@@ -454,9 +455,10 @@ def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, l
         by_name = {i.object_name: i.rotation for i in truths}
         return np.stack([by_name[d.object_name] for d in detections])
 
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, PipelineOptions(), detector,
-                            rotations, refiner=PoseRefiner(models))
-    tracker = PoseTracker(pipeline, TrackingConfig(redetect_every=3, min_track_score=0.3))
+    options = PipelineOptions(tracking=True, tracking_redetect_every=3, tracking_min_score=0.3)
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, options, detector, rotations,
+                            refiner=PoseRefiner(models, options))
+    tracker = PoseTracker(pipeline)
     first = tracker.estimate(image, frame.camera)
     assert len(calls) == 1 and 'detector' in first.timings_ms
     assert sorted(tracker.tracks) == sorted(i.object_name for i in truths)
@@ -482,17 +484,18 @@ def test_tracker_follows_and_redetects_by_policy(viewpoint_models, lmo_models, l
     assert tracker.tracks == {}
     with pytest.raises(InputError, match='PoseRefiner'):
         PoseTracker(PosePipeline(pipeline.models, PipelineOptions(refine=False), detector,
-                                 rotations), tracker.config)
+                                 rotations))
 
 
 def test_pipeline_with_refiner_and_no_detections(viewpoint_models, lmo_models, lmo_frames):
     models, _ = viewpoint_models
     frame = lmo_frames[0]
-    pipeline = PosePipeline({n: lmo_models[n] for n in models},
-                            PipelineOptions(refine_hypotheses=2), lambda image: [],
-                            lambda *args: np.zeros((0, 3, 3)), refiner=PoseRefiner(models))
+    options = PipelineOptions(refine_hypotheses=2)
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, options, lambda image: [],
+                            lambda *args: np.zeros((0, 3, 3)),
+                            refiner=PoseRefiner(models, options))
     assert pipeline.estimate(frame.load_image(), frame.camera).poses == []
-    assert PoseRefiner(models)(frame.load_image(), frame.camera, []) == []
+    assert PoseRefiner(models, options)(frame.load_image(), frame.camera, []) == []
 
 
 class TruthCorrespondences:
@@ -539,7 +542,8 @@ def test_pnp_poses_are_candidates_and_say_so(viewpoint_models, lmo_models, lmo_f
     # rotation is a second candidate.
     options = PipelineOptions(pose_source='dense', dense_translation='both',
                               dense_mask='amodal')
-    refined = PosePipeline(objects, options, refiner=PoseRefiner({n: models[n] for n in objects}),
+    refined = PosePipeline(objects, options,
+                           refiner=PoseRefiner({n: models[n] for n in objects}, options),
                            correspondences=oracle).estimate(
         frame.load_image(), frame.camera, detections)
     assert {p.source for p in refined.poses} <= {'pnp', 'pnp_rotation'}
@@ -556,11 +560,9 @@ def test_the_start_prior_holds_what_the_lines_hardly_constrain(viewpoint_models,
     truths = [i for i in frame.instances if i.object_name in models and i.visib_fract > 0.3]
     args = (bins, frame.camera, [models[t.object_name] for t in truths],
             [t.rotation for t in truths], [t.translation for t in truths])
-    free = dataclasses.replace(RefinerConfig(), prior_rotation_deg=0.0,
-                               prior_translation_m=0.0, keep_better_start=False)
-    held = dataclasses.replace(refiner_config(PipelineOptions(refine_prior_deg=0.02)),
-                               keep_better_start=False)
-    moved, kept = refine_poses(*args, free), refine_poses(*args, held)
+    config = RefinerConfig(keep_better_start=False)
+    moved = refine_poses(*args, PipelineOptions(refine_prior_deg=0.0), config)
+    kept = refine_poses(*args, PipelineOptions(refine_prior_deg=0.02), config)
     turned = [rotation_error_deg(r.rotation, t.rotation) for r, t in zip(moved, truths)]
     # Started at the truth, the contour lines alone turn real poses off by degrees; a
     # rotation prior of 0.02 deg holds every rotation, not the translation.
@@ -570,8 +572,8 @@ def test_the_start_prior_holds_what_the_lines_hardly_constrain(viewpoint_models,
         assert rotation_error_deg(result.rotation, truth.rotation) < 0.1
     assert max(np.linalg.norm(r.translation - t.translation)
                for r, t in zip(kept, truths)) > 1e-3
-    with pytest.raises(InputError, match='prior'):
-        RefinerConfig(prior_translation_m=-1.0)
+    with pytest.raises(InputError, match='refine_prior_mm'):
+        PipelineOptions(refine_prior_mm=-1.0)
 
 
 def _frame_lines(viewpoint_models, lmo_frames, scale):
@@ -674,7 +676,7 @@ def test_threads_split_the_poses_without_changing_them(viewpoint_models, lmo_fra
     starts = [perturb_pose(i.rotation, i.translation, 10.0, 0.01, rng) for i in instances]
     runs = [refine_poses(color_bins(frame.load_image()), frame.camera,
                          [models[i.object_name] for i in instances], [r for r, _ in starts],
-                         [t for _, t in starts], RefinerConfig(threads=threads))
+                         [t for _, t in starts], PipelineOptions(refine_threads=threads))
             for threads in (1, 2)]
     for one, two in zip(*runs):
         assert one.status == two.status == 'ok'

@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.refine.color_histograms import color_bins
-from bbpose_ros.core.refine.refiner import refine_poses, RefinerConfig
+from bbpose_ros.core.refine.refiner import refine_poses
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 
@@ -63,7 +64,7 @@ def _along_ray_mm(scenes, window):
     errors = []
     for bins, camera, models, rotation, translation in scenes:
         results = refine_poses(bins, camera, models, rotation, translation,
-                               RefinerConfig(local_color_lines=window),
+                               PipelineOptions(refine_local_colors=window),
                                instances=range(len(models)))
         for result, truth in zip(results, translation):
             ray = truth / np.linalg.norm(truth)
@@ -94,5 +95,5 @@ def test_local_colours_are_the_global_ones_without_samples(truths):
     with_local = modality.lines(rotation, translation, hist_f, hist_b, 1, local=local)
     without = modality.lines(rotation, translation, hist_f, hist_b, 1)
     np.testing.assert_allclose(with_local.mean, without.mean, atol=1e-6)
-    with pytest.raises(InputError, match='local_color_lines'):
-        RefinerConfig(local_color_lines=-1)
+    with pytest.raises(InputError, match='refine_local_colors'):
+        PipelineOptions(refine_local_colors=-1)

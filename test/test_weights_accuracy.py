@@ -44,7 +44,7 @@ def pipeline(lmo_models):
 
 def test_hypotheses_are_chosen_by_the_box_unless_the_weight_is_zero(pipeline, lmo_models):
     assert pipeline.rotation_estimator.all_hypotheses
-    assert pipeline.hypothesis_selector.weight == PipelineOptions().box_consistency_weight
+    assert pipeline.hypothesis_selector.options is pipeline.options
     plain = load_pipeline(lmo_models, PipelineOptions(refine=False, inference_threads=2,
                                                       box_consistency_weight=0.0))
     assert not plain.rotation_estimator.all_hypotheses

@@ -117,7 +117,7 @@ def bench_frames(frames: Sequence[BopFrame], values: dict[str, Any],
                   detector_network=pipeline.detector.precision,
                   qnet_network=getattr(pipeline.rotation_estimator, 'precision', None),
                   inference_threads=options.inference_threads or os.cpu_count(),
-                  refine_hypotheses=options.refine_hypotheses if options.refine else 0)
+                  refine=options.refine, refine_hypotheses=options.refine_hypotheses)
     return report
 
 

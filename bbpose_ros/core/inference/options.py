@@ -18,12 +18,16 @@
 Each field is one setting, under one name from the node's parameters file to the stage
 that reads it: its type, default (the shipped value), range or choices and a one-line
 description live here and nowhere else. The node's parameter descriptors
-(``ros/params.py``) and the ``bbpose eval`` / ``bbpose bench`` options
-(``cli/pipeline_arguments.py``) are generated from ``SETTINGS``, and a test holds
-config/bbpose.yaml's values equal to these defaults (the node's own default
-``inference_threads`` aside: ``ros/params.py`` NODE_DEFAULTS). A PipelineOptions checks
-itself when it is made (``check_option`` for each field, then the combinations), so a value
-is checked once, wherever it comes from.
+(``ros/params.py``), the ``bbpose eval`` / ``bbpose bench`` options
+(``cli/pipeline_arguments.py``) and config/bbpose.yaml (``cli/config_file.py``, ``make
+config``) are generated from ``SETTINGS``. A PipelineOptions checks itself when it is made
+(``check_option`` for each field, then the combinations), so a value is checked once,
+wherever it comes from.
+
+The stages take the PipelineOptions itself and read their settings from it by these names
+and units (``options.refine_local_colors`` in ``refine.refiner``, ``options.inference_threads``
+in ``inference.backends``): no stage renames, converts, defaults or checks a setting again,
+and a stage used alone (in a test) gets its settings from ``PipelineOptions(...)`` too.
 
 A leaf module: it imports nothing but the errors, so the parameter table and the
 command-line parsers load without torch or numba.
@@ -85,7 +89,8 @@ class PipelineOptions:
         '(region-based, no learning); its score becomes the pose confidence.')
     refine_hypotheses: int = _setting(
         3, "How many of each detection's best-ranked rotation hypotheses are refined; the "
-        'best-scored is kept (cost grows with it).', 1, 8)
+        'best-scored is kept (cost grows with it). Without refine the best-ranked one alone '
+        'is solved.', 1, 8)
     refine_min_score: float = _setting(
         0.0, 'Refined poses scoring below this (0..1: share of contour lines that agree with '
         'the image) are dropped; 0 keeps all.', 0.0, 1.0)
@@ -197,11 +202,6 @@ class PipelineOptions:
     def corrects_boxes(self) -> bool:
         """Tell whether the dense net's amodal masks correct the detections' boxes."""
         return self.box_source != 'detector'
-
-    @property
-    def candidates_per_detection(self) -> int:
-        """Rotation hypotheses solved (and refined) per detection: 1 without refinement."""
-        return self.refine_hypotheses if self.refine else 1
 
 
 @dataclass(frozen=True)

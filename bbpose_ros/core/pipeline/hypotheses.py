@@ -20,18 +20,18 @@ the right rotation one translation makes the object touch all four sides; under 
 (say, an elongated object turned the other way) it cannot, and the equation's residuals
 grow. ``HypothesisSelector`` solves the equation for every hypothesis and ranks them by
 
-    log p_h - weight * max_k |side residual_k| / longest box side,
+    log p_h - box_consistency_weight * max_k |side residual_k| / longest box side,
 
-with p_h the network's probability of hypothesis h (softmax of its scores): ``weight`` 20
+with p_h the network's probability of hypothesis h (softmax of its scores): a weight of 20
 trusts a side residual of 5 % of the box as much as a factor e of probability. The default
 weight was chosen on held-out synthetic crops, never on the real frames
 (docs/experiments.md). Scoring solves use a subsample of each object's hull points, which
 changes a residual by far less than the differences between hypotheses.
 
-Where the dense net predicts the detection's amodal mask, ``mask_weight`` adds
-``mask_weight * IoU_h``: the soft IoU of hypothesis h's silhouette (at the equation's
-translation) with that mask (``mask_agreement``), which tells apart rotations whose boxes
-look alike but whose shapes do not.
+Where the dense net predicts the detection's amodal mask, ``mask_consistency_weight`` adds
+``mask_consistency_weight * IoU_h``: the soft IoU of hypothesis h's silhouette (at the
+equation's translation) with that mask (``mask_agreement``), which tells apart rotations
+whose boxes look alike but whose shapes do not.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
@@ -80,33 +81,34 @@ class HypothesisSelector:
 
     Args:
         models: {name: ObjectModel}.
-        weight: how much the box misfit counts against the network's log-probability,
-            >= 0 (``PipelineOptions.box_consistency_weight`` checks it); 0 (with no mask
-            term) keeps the network's best-scored hypothesis and solves nothing.
+        options: the PipelineOptions: ``box_consistency_weight`` (0, with no mask term,
+            keeps the network's best-scored hypothesis and solves nothing) and
+            ``mask_consistency_weight``, which counts where masks are given and there is an
+            ``agreement``.
+        agreement: the MaskAgreement that scores silhouettes against masks; None: no mask
+            term.
         points_per_object: hull points kept for the scoring solves.
-        mask_weight: how much the silhouette's agreement with the predicted amodal mask
-            counts (0..1 IoU, times this, >= 0); used when masks are given and
-            ``agreement`` is set.
-        agreement: the MaskAgreement that scores silhouettes against masks.
 
     Raises:
-        InputError: a mask weight without an agreement; on a call, hypotheses that do not
-            match the detections.
+        InputError: on a call, hypotheses or masks that do not match the detections.
 
     """
 
-    def __init__(self, models: Mapping[str, ObjectModel],
-                 weight: float, points_per_object: int = SCORING_POINTS,
-                 mask_weight: float = 0.0, agreement: MaskAgreement | None = None) -> None:
-        if mask_weight > 0 and agreement is None:
-            raise InputError('mask_consistency_weight > 0 needs a MaskAgreement')
-        self.weight = float(weight)
-        self.mask_weight = float(mask_weight)
+    def __init__(self, models: Mapping[str, ObjectModel], options: PipelineOptions,
+                 agreement: MaskAgreement | None = None,
+                 points_per_object: int = SCORING_POINTS) -> None:
+        self.options = options
         self.agreement = agreement
         self._index = {name: k for k, name in enumerate(models)}
-        self._points = None if self.weight == 0.0 and self.mask_weight == 0.0 else \
+        scored = options.box_consistency_weight > 0.0 or self._mask_term
+        self._points = None if not scored else \
             pad_point_sets([farthest_points(m.hull_points, points_per_object)
                             for m in models.values()])
+
+    @property
+    def _mask_term(self) -> bool:
+        """Tell whether silhouettes are scored against given masks."""
+        return self.agreement is not None and self.options.mask_consistency_weight > 0.0
 
     def __call__(self, camera: CameraIntrinsics, detections: Sequence[Detection],
                  hypotheses: RotationHypotheses) -> np.ndarray:
@@ -128,9 +130,10 @@ class HypothesisSelector:
                              f'{log_probs.shape} for {len(detections)} detections')
         if masks is not None and len(masks.probabilities) != n:
             raise InputError(f'{len(masks.probabilities)} masks for {n} detections')
-        with_masks = masks is not None and self.mask_weight > 0.0
+        box_weight = self.options.box_consistency_weight
+        with_masks = masks is not None and self._mask_term
         ranking = log_probs
-        if n > 0 and total > 1 and (self.weight > 0.0 or with_masks):
+        if n > 0 and total > 1 and (box_weight > 0.0 or with_masks):
             boxes = np.repeat(np.stack([d.box_uv for d in detections]).astype(float), total,
                               axis=0)
             points = self._points[[self._index[d.object_name] for d in detections]]
@@ -138,12 +141,13 @@ class HypothesisSelector:
                                           np.repeat(points, total, axis=0),
                                           camera.fx, camera.fy, camera.cx, camera.cy)
             misfit = box_misfit(solution.side_residuals_px, boxes).reshape(n, total)
-            ranking = log_probs - self.weight * misfit
+            ranking = log_probs - box_weight * misfit
             if with_masks:
                 each = np.repeat(np.arange(n), total)
                 agreement = self.agreement(camera, [detections[k].object_name for k in each],
                                            rotations.reshape(-1, 3, 3), solution.translations,
                                            masks.take(each))
-                ranking = ranking + self.mask_weight * agreement.reshape(n, total)
+                ranking = ranking + self.options.mask_consistency_weight * \
+                    agreement.reshape(n, total)
         order = np.argsort(-ranking, axis=1, kind='stable')[:, :max(1, min(count, total))]
         return rotations[np.arange(n)[:, None], order]

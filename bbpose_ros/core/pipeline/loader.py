@@ -43,7 +43,7 @@ from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
-from bbpose_ros.core.pipeline.tracking import PoseTracker, TrackingConfig
+from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 
 if TYPE_CHECKING:
@@ -110,9 +110,7 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         # The silhouettes come from the refiner's viewpoint models.
         agreement = MaskAgreement(refiner.viewpoint_models if refiner is not None else
                                   load_viewpoint_models(models, progress=False, log=log))
-    selector = HypothesisSelector(models, options.box_consistency_weight,
-                                  mask_weight=0.0 if agreement is None
-                                  else options.mask_consistency_weight, agreement=agreement)
+    selector = HypothesisSelector(models, options, agreement)
     detector = rotation = correspondences = None
     if not given.boxes:
         detector_weights = weights.detector or DEFAULT_DETECTOR_WEIGHTS
@@ -123,8 +121,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         qnet_weights = weights.qnet or DEFAULT_QNET_WEIGHTS
         qnet = load_network(qnet_weights, 'qnet', names)
         # Every hypothesis is needed when they are ranked by box or mask or several refined.
-        ranked = selector.weight > 0 or options.ranks_by_mask or \
-            options.candidates_per_detection > 1
+        ranked = options.box_consistency_weight > 0 or options.ranks_by_mask or \
+            (options.refine and options.refine_hypotheses > 1)
         rotation = QNetRotationEstimator(qnet, options,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked,
                                          int8_graph=choose_int8_graph(options, qnet_weights,
@@ -134,10 +132,7 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         correspondences = load_correspondences(models, options, weights.dense)
     pipeline = PosePipeline(models, options, detector, rotation, hypothesis_selector=selector,
                             refiner=refiner, correspondences=correspondences)
-    if options.tracking:
-        return PoseTracker(pipeline, TrackingConfig(options.tracking_redetect_every,
-                                                    options.tracking_min_score))
-    return pipeline
+    return PoseTracker(pipeline) if options.tracking else pipeline
 
 
 def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOptions,

@@ -66,13 +66,13 @@ class PosePipeline:
     Args:
         models: {name: ObjectModel} of the objects to report.
         options: the PipelineOptions the stages were built for; the pipeline reads
-            ``candidates_per_detection``, ``uses_dense``, ``dense_translation``,
-            ``dense_mask``, ``box_source`` and ``box_consistency_weight`` from it.
+            ``refine``, ``refine_hypotheses``, ``pose_source``, ``dense_translation``,
+            ``dense_mask`` and ``box_source`` from it.
         detector: callable image -> detections, or None when detections are always given.
         rotation_estimator: callable (image, camera, detections) -> (N, 3, 3) rotations or
             RotationHypotheses, or None when rotations are always given.
         hypothesis_selector: the HypothesisSelector that ranks RotationHypotheses; None: one
-            with the options' box weight, made when hypotheses first come.
+            of the options (without masks), made when hypotheses first come.
         refiner: a ``refinement.PoseRefiner`` (its ``best_of`` refines candidate poses and
             keeps the best-scored one per detection); given exactly when ``options.refine``.
         correspondences: a ``correspondences.DenseCorrespondenceEstimator``, or None (Q-Net's
@@ -176,11 +176,11 @@ class PosePipeline:
             count = 1
             if isinstance(rotations, RotationHypotheses):
                 if self.hypothesis_selector is None:
-                    self.hypothesis_selector = HypothesisSelector(
-                        self.models, self.options.box_consistency_weight)
+                    self.hypothesis_selector = HypothesisSelector(self.models, self.options)
+                # Without refinement the best-ranked hypothesis alone is solved.
                 rotations = self.hypothesis_selector.ranked(
-                    camera, box_sets[0], rotations, self.options.candidates_per_detection,
-                    amodal)
+                    camera, box_sets[0], rotations,
+                    self.options.refine_hypotheses if self.options.refine else 1, amodal)
                 count = rotations.shape[1]
                 timer.lap('hypothesis_selection')
             for boxed in box_sets:

@@ -18,8 +18,8 @@ The pipeline's refinement stage: each pose aligned with the image by ``refine.re
 It runs after the Bounding Box Equation, whose translation and the chosen rotation are the
 start; the silhouette corrects the depth that a box with a side a few pixels off gets
 wrong, as much as the rotation. The refinement score
-becomes the pose's confidence; poses scored below ``min_score`` are dropped, which rejects
-detections whose silhouette the image does not support.
+becomes the pose's confidence; poses scored below ``refine_min_score`` are dropped, which
+rejects detections whose silhouette the image does not support.
 """
 
 from __future__ import annotations
@@ -60,8 +60,9 @@ class PoseRefiner:
     Args:
         viewpoint_models: {name: ViewpointModel} of the objects that can be refined; poses
             of other objects pass unchanged.
-        config: RefinerConfig shared by all objects.
-        min_score: refined poses scored below this (0..1) are dropped; 0 keeps all.
+        options: the PipelineOptions: ``refine_min_score`` and ``refine_mask_choice_weight``
+            here, the other ``refine_*`` settings in ``refine_poses``.
+        config: the method's RefinerConfig, shared by all objects (default: the shipped).
         screening_iterations: of a detection with several candidates, each is refined this
             many iterations and only the best-scored continues (at least the config's
             iterations: every candidate is refined to the end). Screening needs the config's
@@ -70,37 +71,32 @@ class PoseRefiner:
             (keep_better_start, or the mask merit below) or no colours can be measured at the
             pose it reached (then it ends as 'outside_image'); with another rate every
             candidate is refined to the end.
-        mask_choice_weight: where a detection's candidates come with a predicted amodal mask
-            (``best_of``'s ``choice_masks``), each that ran is chosen by its merit, the score
-            + this x the soft IoU (0..1, ``mask_agreement``) of its silhouette with the
-            mask, and, with the config's keep_better_start (which measures the score at the
-            start), a refinement that lowers the merit gives its start back with the score
-            there (``min_score`` then judges that score): the mask judges the whole object
-            where the score judges a band around the contour. 0: the score alone.
+
+    Where a detection's candidates come with a predicted amodal mask (``best_of``'s
+    ``choice_masks``), each that ran is chosen by its merit, the score +
+    ``refine_mask_choice_weight`` x the soft IoU (0..1, ``mask_agreement``) of its
+    silhouette with the mask, and, with the config's keep_better_start (which measures the
+    score at the start), a refinement that lowers the merit gives its start back with the
+    score there (``refine_min_score`` then judges that score): the mask judges the whole
+    object where the score judges a band around the contour.
 
     """
 
     def __init__(self, viewpoint_models: Mapping[str, ViewpointModel],
-                 config: RefinerConfig | None = None, min_score: float = 0.0,
-                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS,
-                 mask_choice_weight: float = 0.0) -> None:
-        if not 0.0 <= min_score <= 1.0:
-            raise InputError(f'refinement min_score must be in [0, 1], got {min_score}')
+                 options: PipelineOptions, config: RefinerConfig = RefinerConfig(),
+                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS) -> None:
         if screening_iterations < 1:
             raise InputError(f'screening_iterations must be >= 1, got {screening_iterations}')
-        if not mask_choice_weight >= 0.0:
-            raise InputError(f'mask_choice_weight must be >= 0, got {mask_choice_weight}')
-        self.config = config or RefinerConfig()
-        self.min_score = float(min_score)
+        self.options = options
+        self.config = config
         self.screening_iterations = int(screening_iterations)
-        self.mask_choice_weight = float(mask_choice_weight)
         self.viewpoint_models = dict(viewpoint_models)
         self._agreement = MaskAgreement(self.viewpoint_models)
 
     def __call__(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
                  poses: Sequence[PoseEstimate], masks: ForegroundMasks | None = None,
                  choice_masks: ForegroundMasks | None = None) -> list[PoseEstimate]:
-        """Refine the poses (with masks, if any: see ``best_of``); keep those >= min_score."""
+        """Refine the poses (with masks, if any: see ``best_of``); keep those scored enough."""
         return self.best_of(image_rgb, camera, [[pose] for pose in poses], masks,
                             choice_masks)
 
@@ -112,8 +108,8 @@ class PoseRefiner:
         Refine the candidate poses of each detection and keep the best one.
 
         Every candidate gets ``screening_iterations``; the best of each detection (by its
-        score, or with ``choice_masks`` by its merit: score + ``mask_choice_weight`` x mask
-        agreement) then continues to the end of the schedule. With ``choice_masks`` and the
+        score, or with ``choice_masks`` by its merit: score + ``refine_mask_choice_weight`` x
+        mask agreement) then continues to the end of the schedule. With ``choice_masks`` and the
         config's keep_better_start, a refinement that lowered the merit gives its start back.
 
         Args:
@@ -128,7 +124,7 @@ class PoseRefiner:
                 refinement, or None: the score alone.
 
         Returns:
-            Per detection, the best refined candidate when it scores >= min_score, in the
+            Per detection, the best refined candidate when it scores >= refine_min_score, in the
             given order; detections of objects without a viewpoint model keep their first
             candidate unrefined.
 
@@ -179,18 +175,19 @@ class PoseRefiner:
                     refined.append(group[0])
                 continue
             pose, result, _ = chosen[k]
-            if result.score >= self.min_score:
+            if result.score >= self.options.refine_min_score:
                 refined.append(with_refinement(pose, result))
         return refined
 
     def _merits(self, camera, detections, names, poses, scores, choice_masks):
-        """(J,) scores + ``mask_choice_weight`` x the agreement of the poses with the masks."""
+        """(J,) scores + ``refine_mask_choice_weight`` x the poses' agreement with the masks."""
+        weight = self.options.refine_mask_choice_weight
         scores = np.asarray(scores, dtype=float)
-        if choice_masks is None or self.mask_choice_weight == 0.0 or not len(detections):
+        if choice_masks is None or weight == 0.0 or not len(detections):
             return scores
         agreement = self._agreement(camera, names, [r for r, _ in poses], [t for _, t in poses],
                                     choice_masks.take(detections))
-        return scores + self.mask_choice_weight * agreement
+        return scores + weight * agreement
 
     def _give_back_starts(self, camera, chosen, choice_masks):
         """
@@ -202,7 +199,7 @@ class PoseRefiner:
         """
         ran = [(k, pose, result, start) for k, (pose, result, start) in chosen.items()
                if result.ok and math.isfinite(start)]
-        if self.mask_choice_weight == 0.0 or not ran:
+        if self.options.refine_mask_choice_weight == 0.0 or not ran:
             return
         detections = [k for k, *_ in ran] * 2
         names = [pose.object_name for _, pose, *_ in ran] * 2
@@ -225,8 +222,8 @@ class PoseRefiner:
         # Of a detection's candidates the first (best-ranked) hides the other detections.
         first = [n == 0 or detections[n - 1] != k for n, k in enumerate(detections)]
         return refine_poses(bins, camera, [self.viewpoint_models[p.object_name] for _, p in jobs],
-                            [r for r, _ in starts], [t for _, t in starts], self.config,
-                            iterations=iterations, first_iteration=first_iteration,
+                            [r for r, _ in starts], [t for _, t in starts], self.options,
+                            self.config, iterations=iterations, first_iteration=first_iteration,
                             masks=None if masks is None else masks.take(detections),
                             prior_centres=centres, instances=detections, occluders=first)
 
@@ -238,7 +235,7 @@ class PoseRefiner:
         """Refine tracked poses in one batch (each its own instance), from the fine end."""
         return refine_poses(color_bins(image_rgb), camera,
                             [self.viewpoint_models[name] for name in names], rotations,
-                            translations, self.config, histograms, iterations,
+                            translations, self.options, self.config, histograms, iterations,
                             max(len(self.config.scales) - iterations, 0),
                             instances=range(len(names)))
 
@@ -247,15 +244,6 @@ def with_refinement(pose: PoseEstimate, result: Refinement) -> PoseEstimate:
     """Move a pose to a refinement's result and score it (unchanged when it did not run)."""
     return dataclasses.replace(pose, rotation=result.rotation, translation=result.translation,
                                refinement_score=result.score)
-
-
-def refiner_config(options: PipelineOptions) -> RefinerConfig:
-    """Return the shipped RefinerConfig with the options' prior, threads, occlusions, colours."""
-    return RefinerConfig(prior_rotation_deg=options.refine_prior_deg,
-                         prior_translation_m=options.refine_prior_mm / 1000.0,
-                         threads=options.refine_threads,
-                         model_occlusions=options.refine_occlusions,
-                         local_color_lines=options.refine_local_colors)
 
 
 def load_pose_refiner(models: Mapping[str, ObjectModel], options: PipelineOptions,
@@ -269,5 +257,4 @@ def load_pose_refiner(models: Mapping[str, ObjectModel], options: PipelineOption
     """
     compile_kernels()
     return PoseRefiner(load_viewpoint_models(models, cache_dir, progress=progress, log=log),
-                       refiner_config(options), options.refine_min_score,
-                       mask_choice_weight=options.refine_mask_choice_weight)
+                       options)

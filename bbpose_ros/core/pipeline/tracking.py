@@ -18,13 +18,16 @@ Tracking over a stream: each refined pose seeds the next frame's refinement.
 Policy, per frame:
 
 1. every track is refined from its last pose with its own colour model (a few iterations:
-   the motion between frames is small); a track scored below ``min_track_score`` is lost;
+   the motion between frames is small); a track scored below ``tracking_min_score`` is
+   lost;
 2. the full pipeline (detector, Q-Net, Bounding Box Equation, refinement) runs when there
-   are no tracks, when a track was lost in this frame, or every ``redetect_every`` frames
-   (new objects may have come into view);
+   are no tracks, when a track was lost in this frame, or every
+   ``tracking_redetect_every`` frames (new objects may have come into view);
 3. a detection of an object that is already tracked replaces the track only when its
-   refinement scores higher; other detections scored at least ``min_track_score`` start
+   refinement scores higher; other detections scored at least ``tracking_min_score`` start
    tracks, the rest are reported for this frame only.
+
+Both settings are the pipeline's PipelineOptions'.
 
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
@@ -40,6 +43,7 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.latency import StageTimer
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import FrameResult, PoseEstimate
@@ -50,30 +54,11 @@ if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
 
-@dataclass(frozen=True)
-class TrackingConfig:
-    """
-    Settings of the tracker.
-
-    Attributes:
-        redetect_every: run the full pipeline at least every this many frames, >= 1
-            (``PipelineOptions.tracking_redetect_every`` checks it).
-        min_track_score: a track whose refinement scores below this (0..1) is lost
-            (``PipelineOptions.tracking_min_score``).
-        iterations: correspondence iterations of a tracking refinement (the refiner's
-            last scales and standard deviations are used).
-        color_rate: how far a track's colour model moves towards each frame's (0..1).
-
-    """
-
-    redetect_every: int
-    min_track_score: float
-    iterations: int = 3
-    color_rate: float = 0.2
-
-    def __post_init__(self) -> None:
-        if self.iterations < 1 or not 0.0 <= self.color_rate <= 1.0:
-            raise InputError('tracking needs iterations >= 1 and color_rate in [0, 1]')
+# Correspondence iterations of a tracking refinement (the refiner's last scales and
+# standard deviations are used).
+TRACK_ITERATIONS = 3
+# How far a track's colour model moves towards each frame's (0..1).
+TRACK_COLOR_RATE = 0.2
 
 
 @dataclass
@@ -89,18 +74,22 @@ class PoseTracker:
     Runs a PosePipeline (with a refiner) over a stream, tracking refined poses.
 
     Args:
-        pipeline: a PosePipeline with detector, rotation estimator and refiner.
-        config: TrackingConfig.
+        pipeline: a PosePipeline with detector, rotation estimator and refiner; the
+            tracker reads its ``options``' ``tracking_*`` settings.
 
     """
 
-    def __init__(self, pipeline: PosePipeline, config: TrackingConfig) -> None:
+    def __init__(self, pipeline: PosePipeline) -> None:
         if not isinstance(pipeline.refiner, PoseRefiner):
             raise InputError('tracking needs a pipeline with a PoseRefiner')
         self.pipeline = pipeline
-        self.config = config
         self.tracks: dict[str, Track] = {}
         self._since_detection = 0
+
+    @property
+    def options(self) -> PipelineOptions:
+        """Return the pipeline's PipelineOptions, the tracker's settings among them."""
+        return self.pipeline.options
 
     @property
     def models(self) -> dict[str, ObjectModel]:
@@ -120,7 +109,8 @@ class PoseTracker:
         timer.lap('tracking' if tracked else None)
         self._since_detection += 1
         untracked = []
-        if not self.tracks or lost or self._since_detection >= self.config.redetect_every:
+        if not self.tracks or lost or \
+                self._since_detection >= self.options.tracking_redetect_every:
             result = self.pipeline.estimate(image_rgb, camera)
             timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
                                     if stage != 'total')
@@ -138,15 +128,15 @@ class PoseTracker:
         results = self.pipeline.refiner.refine_tracks(
             image_rgb, camera, names, [t.pose.rotation for t in tracks],
             [t.pose.translation for t in tracks], [t.histograms for t in tracks],
-            self.config.iterations)
+            TRACK_ITERATIONS)
         lost = False
         for name, track, result in zip(names, tracks, results):
-            if not result.ok or result.score < self.config.min_track_score:
+            if not result.ok or result.score < self.options.tracking_min_score:
                 del self.tracks[name]
                 lost = True
                 continue
             histograms = result.histograms if track.histograms is None else \
-                track.histograms.blended(result.histograms, self.config.color_rate)
+                track.histograms.blended(result.histograms, TRACK_COLOR_RATE)
             self.tracks[name] = Track(replace(track.pose, rotation=result.rotation,
                                               translation=result.translation,
                                               refinement_score=result.score), histograms)
@@ -160,7 +150,7 @@ class PoseTracker:
             if current is not None:
                 if pose.confidence > current.pose.confidence:
                     self.tracks[pose.object_name] = Track(pose)
-            elif (pose.confidence >= self.config.min_track_score
+            elif (pose.confidence >= self.options.tracking_min_score
                   and pose.object_name in self.pipeline.refiner.viewpoint_models):
                 self.tracks[pose.object_name] = Track(pose)
             else:

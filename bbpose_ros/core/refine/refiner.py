@@ -28,6 +28,10 @@ ICG's separation of concerns:
 
 Poses are model-to-camera (egocentric): x_cam = rotation @ x_model + translation, metres.
 Pixel coordinates are continuous with pixel centres at integers (``CameraIntrinsics``).
+
+What a user sets (the ``refine_*`` settings: start prior, threads, occlusions, local
+colours) ``refine_poses`` reads from the PipelineOptions under those names; ``RefinerConfig``
+holds the method's own constants (scale schedule, damping, colour updates).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ import numpy.typing as npt
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.refine import line_kernels
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
@@ -56,7 +61,9 @@ MIN_LINES = 6
 @dataclass(frozen=True)
 class RefinerConfig:
     """
-    Settings of the region-based refinement.
+    The method's constants of the region-based refinement.
+
+    What a user sets are the PipelineOptions' ``refine_*`` settings (``refine_poses``).
 
     Attributes:
         scales: segment size in pixels, per correspondence iteration (the last repeats).
@@ -76,22 +83,6 @@ class RefinerConfig:
             ``region_modality``).
         keep_better_start: give back the start of a pose whose score the refinement
             lowered (the score is measured at the start too, one pass more).
-        prior_rotation_deg: standard deviation of a Gaussian prior around the start's
-            rotation, degrees (0: no prior): how far the start is believed off. Directions
-            the contour hardly constrains (an out-of-plane turn of a round object) then stay
-            near the start instead of drifting with the lines' noise; a far start moves less.
-        prior_translation_m: the same for the translation, metres (depth, mostly).
-        threads: threads the per-line loops run on, split by pose (``line_kernels``);
-            0: one per core.
-        model_occlusions: the poses refined together hide each other's contour where one
-            is nearer the camera (the lines there see the occluder, not the object).
-        local_color_lines: > 0: local colour models (RBOT's): each line's foreground and
-            background colours are those sampled on the contour lines up to this many
-            places before and after it (of the view's points), the pose's histograms a
-            prior where they are few (``region_modality``); 0: one colour model per pose.
-            They serve the scales up to ``LOCAL_COLORS_MAX_SCALE`` pixels a segment: at the
-            coarse scales the start is far, and a local model learned at a wrong contour
-            confirms it. A start with given colours (a track's) keeps its one model.
 
     """
 
@@ -105,11 +96,6 @@ class RefinerConfig:
     min_continuous_px: float = 3.0
     mask_weight: float = 1.0
     keep_better_start: bool = True
-    prior_rotation_deg: float = 0.0
-    prior_translation_m: float = 0.0
-    threads: int = 0
-    model_occlusions: bool = True
-    local_color_lines: int = 0
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -124,24 +110,23 @@ class RefinerConfig:
                              'solvable, also for a pose without lines)')
         if not 0.0 <= self.histogram_rate <= 1.0:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
-        if not (self.prior_rotation_deg >= 0.0 and self.prior_translation_m >= 0.0):
-            raise InputError('start prior standard deviations must be >= 0 (0: no prior), '
-                             f'got {self.prior_rotation_deg} deg, {self.prior_translation_m} m')
         if not 0.0 <= self.mask_weight <= 1.0:
             raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
-        if self.local_color_lines < 0:
-            raise InputError('local_color_lines must be >= 0 (0: one colour model per pose), '
-                             f'got {self.local_color_lines}')
-        if self.threads < 0:
-            raise InputError(f'refinement threads must be >= 0 (0: one per core), got '
-                             f'{self.threads}')
 
-    @property
-    def prior_information(self) -> tuple[float, float]:
-        """(per radian squared, per metre squared) 1 / variance of the start prior; 0: none."""
-        rotation_rad = math.radians(self.prior_rotation_deg)
-        return (1.0 / rotation_rad ** 2 if rotation_rad else 0.0,
-                1.0 / self.prior_translation_m ** 2 if self.prior_translation_m else 0.0)
+
+def prior_information(options: PipelineOptions) -> tuple[float, float]:
+    """
+    (per radian squared, per metre squared) 1 / variance of the start prior; 0: none.
+
+    The prior (``refine_prior_deg``, ``refine_prior_mm``) is a Gaussian around the start:
+    directions the contour hardly constrains (an out-of-plane turn of a round object, the
+    depth) then stay near the start instead of drifting with the lines' noise, and a far
+    start moves less.
+    """
+    rotation_rad = math.radians(options.refine_prior_deg)
+    translation_m = options.refine_prior_mm / 1000.0
+    return (1.0 / rotation_rad ** 2 if rotation_rad else 0.0,
+            1.0 / translation_m ** 2 if translation_m else 0.0)
 
 
 @dataclass(frozen=True)
@@ -179,7 +164,8 @@ class Refinement:
 
 def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                  models: Sequence[ViewpointModel], rotations: Sequence[npt.ArrayLike],
-                 translations: Sequence[npt.ArrayLike], config: RefinerConfig,
+                 translations: Sequence[npt.ArrayLike], options: PipelineOptions,
+                 config: RefinerConfig = RefinerConfig(),
                  histograms: Sequence[ColorHistograms | None] | None = None,
                  iterations: int | None = None, first_iteration: int = 0,
                  masks: ForegroundMasks | None = None,
@@ -196,7 +182,10 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
             points per view).
         rotations: per pose, the (3, 3) initial model-to-camera rotation.
         translations: per pose, the (3,) initial translation, metres.
-        config: RefinerConfig.
+        options: the PipelineOptions, whose ``refine_*`` settings apply: the start prior,
+            the threads of the per-line loops (split by pose), the poses' occlusions, the
+            local colour models.
+        config: the method's RefinerConfig.
         histograms: per pose, a colour model to start from, or None (measured around the
             initial pose).
         iterations: correspondence iterations (default: the config's).
@@ -207,11 +196,11 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
         masks: per pose, a predicted foreground mask (``foreground_masks``), or None: the
             colours alone.
         prior_centres: (rotations, translations) around which the start prior
-            (``RefinerConfig.prior_rotation_deg``, ``prior_translation_m``) lies, per pose
+            (``refine_prior_deg``, ``refine_prior_mm``) lies, per pose
             (default: the starts); a refinement continued at ``first_iteration`` passes the
             first run's starts, so that it ends where one run would.
         instances: per pose, the object instance (e.g. the detection) it is a candidate
-            for. With ``RefinerConfig.model_occlusions``, a pose's silhouette hides the
+            for. With ``refine_occlusions``, a pose's silhouette hides the
             contour points of other instances' poses farther from the camera; candidates of
             one instance never hide each other. None: no pose hides another (e.g. several
             starts of one object).
@@ -231,17 +220,20 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                          f'{camera.width}x{camera.height}')
     if count == 0:
         return []
-    line_kernels.use_threads(config.threads)
+    line_kernels.use_threads(options.refine_threads)
     start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
     start_translation = np.array(translations, dtype=float).reshape(count, 3)
     rotation, translation = start_rotation.copy(), start_translation.copy()
     occlusions = None
-    if config.model_occlusions and instances is not None:
+    if options.refine_occlusions and instances is not None:
         occlusions = (np.asarray(instances, dtype=np.int64).reshape(count),
                       np.ones(count, bool) if occluders is None
                       else np.asarray(occluders, dtype=bool).reshape(count))
+    # Local colour models serve the scales up to LOCAL_COLORS_MAX_SCALE pixels a segment: at
+    # the coarse scales the start is far, and a local model learned at a wrong contour
+    # confirms it. A start with given colours (a track's) keeps its one model.
     modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
-                              config.mask_weight, occlusions, config.local_color_lines)
+                              config.mask_weight, occlusions, options.refine_local_colors)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
@@ -264,7 +256,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     hist_b = np.stack([fresh_b[k] if h is None else h.background for k, h in enumerate(given)])
     iterations = config.iterations if iterations is None else iterations
     start_scores = modality.scores(rotation, translation) if config.keep_better_start else None
-    prior = config.prior_information
+    prior = prior_information(options)
     seen_at_end = None      # colours measured at the final poses, when an iteration did it
     for iteration in range(first_iteration, first_iteration + iterations):
         active = status == 'ok'
@@ -338,5 +330,5 @@ def compile_kernels() -> None:
     bins[:, 64:] = 1
     # Two poses, the nearer one hiding part of the other: the occlusion kernel compiles too.
     refine_poses(bins, camera, [model, model], [np.eye(3), np.eye(3)],
-                 [[-0.05, 0.0, 1.0], [-0.03, 0.0, 1.2]], RefinerConfig(iterations=1),
-                 instances=[0, 1])
+                 [[-0.05, 0.0, 1.0], [-0.03, 0.0, 1.2]], PipelineOptions(),
+                 RefinerConfig(iterations=1), instances=[0, 1])
