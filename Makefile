@@ -99,6 +99,12 @@ lint: setup
 docs: $(STAMP)
 	$(BIN)/bbpose docs
 
+# config/bbpose.yaml from the parameters' declarations (core/inference/options.py,
+# ros/params.py); test/test_config_file.py fails when the file differs from them.
+.PHONY: config
+config: $(STAMP)
+	$(BIN)/python -m bbpose_ros.cli.config_file
+
 clean:
 	rm -rf build install log $(OUT) .pytest_cache
 
