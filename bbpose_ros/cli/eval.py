@@ -25,7 +25,7 @@ from typing import Any, TYPE_CHECKING
 from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
                                    add_objects_argument, float_pair)
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
-from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
@@ -91,7 +91,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='write charts into this folder: recall curves, per-object '
                              'recalls, errors by visible fraction, what a minimum confidence '
                              'keeps')
-    add_settings_arguments(parser, EVAL_SETTINGS)
+    parser.add_argument('--params', type=Path, default=None,
+                        help="the node's parameters file (e.g. bbpose adapt's or add-object's "
+                             'params.yaml): its weight files and settings, under the options '
+                             'given here')
+    parser.add_argument('--skip-adapted', action='store_true',
+                        help='leave out the frames the weights adapted on (bbpose adapt); '
+                             'without it, scoring them is refused')
+    add_settings_arguments(parser, EVAL_SETTINGS, defaults={})
     parser.set_defaults(func=run)
 
 
@@ -102,11 +109,57 @@ EVAL_SETTINGS = tuple(name for name in SETTINGS if not name.startswith('tracking
 def build_pipeline(models: Mapping[str, ObjectModel],
                    args: argparse.Namespace) -> PosePipeline | PoseTracker:
     """Build the pipeline of the options; the stages the ground truth replaces are not loaded."""
-    options = options_of(args, EVAL_SETTINGS)
-    return load_pipeline(models, options,
-                         WeightFiles(args.detector_weights, args.qnet_weights,
-                                     args.dense_weights),
+    options = options_of(args, EVAL_SETTINGS, params_settings(args.params))
+    return load_pipeline(models, options, weight_files(args),
                          StagesGiven(boxes=args.boxes == 'gt', rotations=args.rotation == 'gt'))
+
+
+def params_settings(path: Path | None) -> dict[str, Any]:
+    """{name: value} of the pipeline settings in a node parameters file (none: {})."""
+    if path is None:
+        return {}
+    from bbpose_ros.ros.params import read_params_file
+    values = read_params_file(path)
+    return {name: values[name] for name in EVAL_SETTINGS}
+
+
+def weight_files(args: argparse.Namespace) -> WeightFiles:
+    """Return the weight files of the options, else of ``--params``, else the shipped ones."""
+    named = {}
+    if args.params is not None:
+        from bbpose_ros.ros.params import read_params_file
+        values = read_params_file(args.params)
+        named = {kind: Path(values[f'{kind}_weights']) for kind in ('detector', 'qnet', 'dense')
+                 if values[f'{kind}_weights']}
+    return WeightFiles(*(getattr(args, f'{kind}_weights') or named.get(kind)
+                         for kind in ('detector', 'qnet', 'dense')))
+
+
+def without_adapted(frames: Sequence[BopFrame], weights: WeightFiles,
+                    skip: bool) -> list[BopFrame]:
+    """
+    Refuse, or with ``skip`` leave out, the frames the weight files adapted on.
+
+    A frame is recognised by its pixels (``adaptation.frames.image_fingerprint``), wherever
+    it is read from. Raises InputError naming the first such frame without ``skip``.
+    """
+    from bbpose_ros.core.adaptation.adapt import adapted_frames
+    from bbpose_ros.core.adaptation.frames import image_fingerprint
+    adapted = set()
+    for kind in ('detector', 'qnet'):
+        path = getattr(weights, kind)
+        if path is not None:
+            adapted |= adapted_frames(path, kind)
+    if not adapted:
+        return list(frames)
+    seen = [f for f in frames if image_fingerprint(f.load_image()) in adapted]
+    if seen and not skip:
+        raise InputError(f'the weights adapted on {len(seen)} of these frames (first: '
+                         f'{seen[0].image_path}); scoring them would flatter the weights. '
+                         'Score other frames, or pass --skip-adapted to leave them out')
+    if seen:
+        print(f'left out {len(seen)} frames the weights adapted on (--skip-adapted)')
+    return [f for f in frames if f not in seen]
 
 
 class RecordingDetector:
@@ -137,7 +190,10 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset, args.split)
     models = dataset.load_models(args.objects)
-    frames = dataset.frames()[:args.max_frames]
+    frames = without_adapted(dataset.frames()[:args.max_frames], weight_files(args),
+                             args.skip_adapted)
+    if not frames:
+        raise InputError(f'no frames to score in {args.dataset / args.split}')
     levels = args.perturb_gt or [None]
     if args.perturb_gt is not None and (args.boxes != 'gt' or args.rotation != 'gt'):
         raise InputError('--perturb-gt needs --boxes gt --rotation gt')
@@ -167,9 +223,9 @@ def run(args: argparse.Namespace) -> int:
     report['config'] = {'dataset': str(args.dataset), 'split': args.split,
                         'boxes': args.boxes,
                         'rotation': args.rotation, 'min_visib': args.min_visib,
-                        'detector_weights': _weights_name(args.detector_weights),
-                        'qnet_weights': _weights_name(args.qnet_weights),
-                        'dense_weights': _weights_name(args.dense_weights),
+                        'params': None if args.params is None else str(args.params),
+                        **{f'{kind}_weights': _weights_name(getattr(weight_files(args), kind))
+                           for kind in ('detector', 'qnet', 'dense')},
                         **dataclasses.asdict(pipeline.options),
                         'detector_network': getattr(pipeline.detector, 'precision', None),
                         'qnet_network': getattr(pipeline.rotation_estimator, 'precision',

@@ -55,14 +55,17 @@ def settings_of(args: argparse.Namespace, names: Collection[str]) -> dict[str, A
     return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
 
 
-def options_of(args: argparse.Namespace, names: Collection[str]) -> PipelineOptions:
+def options_of(args: argparse.Namespace, names: Collection[str],
+               base: Mapping[str, Any] | None = None) -> PipelineOptions:
     """
-    Return the PipelineOptions of the settings options of ``names`` (others: defaults).
+    Return the PipelineOptions of the settings options of ``names`` set, over ``base``.
 
-    Raises InputError '--option-name: reason' for a value or combination it does not take.
+    ``base`` ({name: value}, e.g. a node parameters file's) fills the settings not given;
+    the rest keep their defaults. Raises InputError '--option-name: reason' for a value or
+    combination it does not take.
     """
     try:
-        return PipelineOptions(**settings_of(args, names))
+        return PipelineOptions(**{**(base or {}), **settings_of(args, names)})
     except InputError as err:      # 'name: reason' or 'name / name: reason'
         head, _, reason = str(err).partition(': ')
         options = ' / '.join(f'--{n.replace("_", "-")}' for n in head.split(' / '))

@@ -188,22 +188,25 @@ class BopDataset:
         return load_bop_models(self.root, names)
 
     def frames(self, scene_ids: Iterable[int] | None = None,
-               image_ids: Collection[int] | None = None) -> list[BopFrame]:
+               image_ids: Collection[int] | None = None,
+               ground_truth: bool = True) -> list[BopFrame]:
         """
         All frames of the given scenes (default all), sorted by scene and image id.
 
-        ``image_ids`` optionally keeps only those image ids.
+        ``image_ids`` optionally keeps only those image ids. Without ``ground_truth`` the
+        scenes' ``scene_gt*.json`` are not read (they may be absent) and the frames have no
+        instances: unlabelled images, as ``bbpose adapt`` takes them.
         """
         frames = []
         for scene_id in scene_ids if scene_ids is not None else self.scene_ids:
-            frames.extend(self._scene_frames(scene_id, image_ids))
+            frames.extend(self._scene_frames(scene_id, image_ids, ground_truth))
         return frames
 
-    def _scene_frames(self, scene_id, image_ids):
+    def _scene_frames(self, scene_id, image_ids, ground_truth):
         scene_dir = self.split_dir / f'{scene_id:06d}'
         cameras = read_json(scene_dir / 'scene_camera.json')
-        gts = read_json(scene_dir / 'scene_gt.json')
-        infos = read_json(scene_dir / 'scene_gt_info.json')
+        gts = read_json(scene_dir / 'scene_gt.json') if ground_truth else {}
+        infos = read_json(scene_dir / 'scene_gt_info.json') if ground_truth else {}
         width, height = self.camera_size
         frames = []
         for key in sorted(cameras, key=int):

@@ -136,12 +136,19 @@ class DetectorBatches:
         return heat, sides, weight
 
 
-def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Compute CenterNet's penalty-reduced focal loss (alpha 2, beta 4) per peak."""
+def focal_loss(logits: torch.Tensor, target: torch.Tensor,
+               counted: torch.Tensor | None = None) -> torch.Tensor:
+    """
+    Compute CenterNet's penalty-reduced focal loss (alpha 2, beta 4) per peak.
+
+    ``counted`` (bool, the shape of ``target``) leaves the cells where it is False out of
+    the background term: regions whose content is unknown (an untrusted pseudo label).
+    """
     prob = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     positive = target.eq(1.0)
     pos_loss = -torch.log(prob) * (1 - prob) ** 2 * positive
-    neg_loss = -torch.log(1 - prob) * prob ** 2 * (1 - target) ** 4 * ~positive
+    negative = ~positive if counted is None else ~positive & counted
+    neg_loss = -torch.log(1 - prob) * prob ** 2 * (1 - target) ** 4 * negative
     return (pos_loss.sum() + neg_loss.sum()) / positive.sum().clamp_min(1)
 
 

@@ -1,0 +1,371 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``bbpose adapt``'s stages: from an unlabelled recording to weight files the node loads.
+
+Each stage is written whole into the output folder, so a run that stops resumes at the
+first stage whose output is missing:
+
+1. ``frames.json``: the recording's frame keys and pixel fingerprints (``frames``); a
+   second run on another recording or other settings is refused (``inputs.json``).
+2. Per round r (``rounds``): ``round<r>/teacher.json``, the careful pipeline's poses of
+   every frame (round 1 with the base weights, later rounds with the previous round's);
+   ``round<r>/verdicts.json``, the gates' verdicts, keeping a larger share each round;
+   ``round<r>/labels/``, the accepted labels as a scene cache; ``round<r>/detector.pt`` and
+   ``round<r>/qnet.pt``, the students trained from the base weights on those labels.
+3. ``detector.pt``, ``qnet.pt`` (the last round's, recording in their metadata the
+   fingerprints of the frames they adapted on: ``bbpose eval`` refuses to score those) and
+   their int8 graphs, calibrated on the recording.
+4. ``pseudo_labels/``: the last round's accepted labels as a BOP split (``camera.json``,
+   ``<split>/000000/`` with ``rgb/``, ``scene_camera.json``, ``scene_gt.json``,
+   ``scene_gt_info.json``), an auto-annotation other tools can train on.
+5. ``preview.png`` (accepted labels green, refused ones red with their verdict),
+   ``params.yaml`` (the base parameters with the adapted weight files) and ``report.json``
+   (labels per object and round, student figures, stage times).
+"""
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+import json
+from pathlib import Path
+import shutil
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+import yaml
+
+from bbpose_ros.core.adaptation.frames import image_fingerprint, RecordedFrame
+from bbpose_ros.core.adaptation.label_set import IgnoreRegions, write_label_set
+from bbpose_ros.core.adaptation.selection import (select_labels, SelectionSettings, Verdict,
+                                                  verdict_counts)
+from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, HeadTraining)
+from bbpose_ros.core.adaptation.teacher import Teacher, TeacherPose
+from bbpose_ros.core.data.models import ObjectModel
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.files import atomic_output, write_json_atomic
+from bbpose_ros.core.inference.int8_graphs import int8_graph_path
+from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
+from bbpose_ros.core.pipeline.loader import WeightFiles
+from bbpose_ros.core.synth.export import camera_json, uv_to_bop_box
+from bbpose_ros.core.training.cache import TrainingCache
+from bbpose_ros.core.training.new_object import RowTraining
+from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
+                                                   quantize_network)
+from bbpose_ros.core.training.runs import git_commit
+from bbpose_ros.core.viz import draw_box_2d, draw_label
+
+STUDENTS = ('detector', 'qnet')
+# The weight-file metadata field naming the frames a network adapted on.
+ADAPTED_ON = 'adapted_on'
+PREVIEW_FRAMES = 8
+CALIBRATION_CROPS = 256
+ACCEPTED_COLOR, REFUSED_COLOR = (0, 220, 0), (230, 40, 40)
+
+
+@dataclass(frozen=True)
+class AdaptSettings:
+    """
+    What the adaptation runs (recorded in ``report.json`` and ``inputs.json``).
+
+    Attributes:
+        rounds: teacher-students rounds (1..3); each later round's teacher runs the
+            previous round's students.
+        keep_per_round: the share of each object's confident poses a round keeps
+            (``SelectionSettings.keep``), one per round; the last repeats.
+        selection: the other gates (its ``keep`` is replaced per round).
+        teacher_threshold: lowest detector score the teacher refines (0..1); poses under
+            ``selection.min_detection_score`` only mark ignore regions.
+        detector: HeadTraining of the detector's heads.
+        qnet: RowTraining of Q-Net's head rows.
+        seed: seed of the students' draws.
+
+    """
+
+    rounds: int = 2
+    keep_per_round: tuple[float, ...] = (0.5, 0.7)
+    selection: SelectionSettings = field(default_factory=SelectionSettings)
+    teacher_threshold: float = 0.1
+    detector: HeadTraining = field(default_factory=HeadTraining)
+    qnet: RowTraining = field(default_factory=lambda: RowTraining(
+        steps=400, batch=32, lr=1e-3, passes=4, warmup=50))
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.rounds <= 3:
+            raise InputError(f'rounds must be 1..3, got {self.rounds}')
+        if not self.keep_per_round:
+            raise InputError('keep_per_round needs at least one share')
+
+    def selection_of(self, round_number: int) -> SelectionSettings:
+        """Return the gates of round ``round_number`` (1-based)."""
+        keep = self.keep_per_round[min(round_number, len(self.keep_per_round)) - 1]
+        return replace(self.selection, keep=keep)
+
+
+class Adaptation:
+    """
+    The stages of adapting ``base`` weights to a recording, into ``out`` (module docstring).
+
+    Args:
+        frames: the recording (``frames.dataset_frames`` or ``frames.bag_frames``).
+        models: {name: ObjectModel} of the networks' objects.
+        options: the node's PipelineOptions (the teacher lays its careful settings over
+            them).
+        base: the weight files to adapt (concrete paths for detector, qnet and dense).
+        base_params: the node's parameter values ``params.yaml`` starts from.
+        out: output folder.
+        settings: AdaptSettings.
+        progress: show tqdm bars.
+        log: callable(str) for one line per stage.
+        command: the command line, recorded in the report and the weight files.
+
+    """
+
+    def __init__(self, frames: Sequence[RecordedFrame], models: Mapping[str, ObjectModel],
+                 options: PipelineOptions, base: WeightFiles, base_params: Mapping[str, Any],
+                 out: Path, settings: AdaptSettings, progress: bool = True,
+                 log: Callable[[str], None] = print, command: str = '') -> None:
+        self.frames, self.models = list(frames), dict(models)
+        self.options, self.base, self.base_params = options, base, dict(base_params)
+        self.out, self.settings = Path(out), settings
+        self.progress, self.log, self.command = progress, log, command
+        self.report: dict[str, Any] = {}
+
+    def run(self) -> dict[str, Any]:
+        """Run the stages not yet done; return the report (also in ``report.json``)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        report_path = self.out / 'report.json'
+        self.report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+        self.report.update(command=self.command, git_commit=git_commit(),
+                           settings=asdict(self.settings), frames=len(self.frames),
+                           objects=list(self.models))
+        self.report.setdefault('seconds', {})
+        self._stage('frames', self._fingerprints, self.out / 'frames.json')
+        self._check_inputs()
+        weights = self.base
+        for number in range(1, self.settings.rounds + 1):
+            weights = self._round(number, weights)
+        self._stage('export', lambda: self._export(weights), self.out / 'qnet.pt')
+        self._stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
+        self._stage('pseudo_labels', self._pseudo_labels, self.out / 'pseudo_labels')
+        self._stage('preview', self._preview, self.out / 'preview.png')
+        self._params()
+        self.report['seconds']['total'] = round(sum(
+            v for k, v in self.report['seconds'].items() if k != 'total'), 1)
+        write_json_atomic(report_path, self.report)
+        return self.report
+
+    def _stage(self, name, work, output):
+        """Run ``work()`` unless ``output`` exists; time it into the report."""
+        if Path(output).exists():
+            self.log(f'[{name}] done before: {output}')
+            return
+        self.log(f'[{name}] ...')
+        start = time.monotonic()
+        work()
+        self.report['seconds'][name] = round(time.monotonic() - start, 1)
+        write_json_atomic(self.out / 'report.json', self.report)
+
+    def _fingerprints(self):
+        """Write ``frames.json``: each frame's key and pixel fingerprint."""
+        entries = [{'key': f.key, 'sha256': image_fingerprint(f.read())}
+                   for f in tqdm(self.frames, desc='fingerprints', unit='frame',
+                                 disable=not self.progress)]
+        write_json_atomic(self.out / 'frames.json', entries)
+
+    @property
+    def fingerprints(self) -> list[str]:
+        """SHA-256 pixel fingerprints of the recording's frames, in order (``frames.json``)."""
+        return [e['sha256'] for e in json.loads((self.out / 'frames.json').read_text())]
+
+    def _check_inputs(self):
+        """Write ``inputs.json``, or refuse a folder made from other inputs."""
+        inputs = {'frames': self.fingerprints, 'objects': list(self.models),
+                  'base_weights': {k: str(getattr(self.base, k)) for k in ('detector', 'qnet',
+                                                                           'dense')},
+                  'settings': asdict(self.settings)}
+        inputs = json.loads(json.dumps(inputs))    # tuples as JSON lists, for the comparison
+        path = self.out / 'inputs.json'
+        if path.is_file():
+            before = json.loads(path.read_text())
+            changed = sorted(k for k in set(before) | set(inputs)
+                             if before.get(k) != inputs.get(k))
+            if changed:
+                raise InputError(f'{self.out} was made from other inputs ({", ".join(changed)} '
+                                 f'differ, {path}); choose a new --out')
+        write_json_atomic(path, inputs)
+
+    def _round(self, number: int, teacher_weights: WeightFiles) -> WeightFiles:
+        """Run round ``number`` with the teacher on ``teacher_weights``; its students' files."""
+        folder = self.out / f'round{number}'
+        self._stage(f'round{number}_teacher', lambda: self._teach(folder, teacher_weights),
+                    folder / 'teacher.json')
+        self._stage(f'round{number}_labels', lambda: self._select(folder, number),
+                    folder / 'labels')
+        for kind in STUDENTS:
+            self._stage(f'round{number}_{kind}', lambda kind=kind: self._student(folder, kind),
+                        folder / f'{kind}.pt')
+        return replace(self.base, detector=folder / 'detector.pt', qnet=folder / 'qnet.pt')
+
+    def _teach(self, folder, weights):
+        """Write ``teacher.json``: the careful pipeline's poses of every frame."""
+        teacher = Teacher(self.models, self.options, weights, self.settings.teacher_threshold)
+        poses = {}
+        for frame in tqdm(self.frames, desc='teacher', unit='frame',
+                          disable=not self.progress):
+            poses[frame.key] = [p.record() for p in teacher(frame.read(), frame.camera)]
+        write_json_atomic(folder / 'teacher.json', poses)
+
+    def teacher_poses(self, number: int) -> dict[str, list[TeacherPose]]:
+        """{frame key: [TeacherPose]} of round ``number`` (``teacher.json``)."""
+        raw = json.loads((self.out / f'round{number}' / 'teacher.json').read_text())
+        return {key: [TeacherPose.from_record(r) for r in records]
+                for key, records in raw.items()}
+
+    def verdicts(self, number: int) -> dict[str, list[Verdict]]:
+        """{frame key: [Verdict]} of round ``number`` (its gates over its teacher's poses)."""
+        return select_labels(self.teacher_poses(number), self.settings.selection_of(number))
+
+    def _select(self, folder, number):
+        """Judge the teacher's poses; write ``verdicts.json`` and the label set."""
+        verdicts = self.verdicts(number)
+        write_json_atomic(folder / 'verdicts.json', {
+            key: [{'object': v.pose.object_name, 'verdict': v.verdict} for v in judged]
+            for key, judged in verdicts.items()})
+        counts = verdict_counts(verdicts)
+        self.report.setdefault('labels', {})[f'round{number}'] = counts
+        accepted = sum(c['accepted'] for c in counts.values())
+        self.log(f'[round{number}] {accepted} labels accepted of '
+                 f'{sum(sum(c.values()) for c in counts.values())} poses: ' +
+                 ', '.join(f'{name} {c["accepted"]}' for name, c in counts.items()))
+        detector = load_network(self.base.detector, 'detector', list(self.models))
+        write_label_set(folder / 'labels', self.frames, verdicts, list(self.models),
+                        detector.config.input_size)
+
+    def _student(self, folder, kind):
+        """Train one student from the base weights on the round's labels; write its file."""
+        cache = TrainingCache(folder / 'labels')
+        base = getattr(self.base, kind)
+        network = load_network(base, kind, list(self.models))
+        if kind == 'detector':
+            figures = adapt_detector(network, cache, IgnoreRegions.read(folder / 'labels'),
+                                     self.settings.detector, self.settings.seed,
+                                     self.progress)
+            training = asdict(self.settings.detector)
+        else:
+            figures = adapt_qnet(network, cache, self.models, self.settings.qnet,
+                                 self.settings.seed, self.progress)
+            training = asdict(self.settings.qnet)
+        self.report.setdefault('students', {})[f'{folder.name}_{kind}'] = figures
+        self.log(f'[{folder.name} {kind}] ' +
+                 ', '.join(f'{k} {v:.4f}' for k, v in figures.items()))
+        metadata, _ = read_weights(base, kind)
+        record = {'command': self.command, 'git_commit': git_commit(),
+                  'trained': 'adapted to a recording by bbpose adapt (heads only)',
+                  'base': str(base), 'base_training': metadata.get('training', {}),
+                  'settings': training, 'labels': len(cache.object),
+                  ADAPTED_ON: self.fingerprints}
+        save_weights(folder / f'{kind}.pt', network, kind, record)
+
+    def _export(self, weights):
+        """Copy the last round's students to the output folder."""
+        shutil.copyfile(weights.detector, self.out / 'detector.pt')
+        shutil.copyfile(weights.qnet, self.out / 'qnet.pt')
+
+    def _int8(self):
+        """Write both students' int8 graphs, calibrated on the last round's label set."""
+        cache = TrainingCache(self.out / f'round{self.settings.rounds}' / 'labels')
+        detector = load_network(self.out / 'detector.pt', 'detector')
+        frames = calibration_images(cache.images, detector.config.input_size, len(cache.images))
+        quantize_network(self.out / 'detector.pt', 'detector', (frames,),
+                         int8_graph_path(self.out / 'detector.pt'), 'bbpose adapt')
+        qnet = load_network(self.out / 'qnet.pt', 'qnet')
+        crops = calibration_crops(cache, qnet.config, CALIBRATION_CROPS, self.settings.seed)
+        quantize_network(self.out / 'qnet.pt', 'qnet', crops,
+                         int8_graph_path(self.out / 'qnet.pt'), 'bbpose adapt')
+
+    def _pseudo_labels(self):
+        """Write the last round's accepted labels as a BOP dataset folder."""
+        verdicts = self.verdicts(self.settings.rounds)
+        ids = {name: model.obj_id for name, model in self.models.items()}
+        camera = self.frames[0].camera
+        with atomic_output(self.out / 'pseudo_labels') as staging:
+            scene = staging / 'test' / '000000'
+            (scene / 'rgb').mkdir(parents=True)
+            gts, infos, cameras, keys = {}, {}, {}, {}
+            for image_id, frame in enumerate(self.frames):
+                labels = [v.pose for v in verdicts.get(frame.key, []) if v.accepted]
+                if not labels:
+                    continue
+                cv2.imwrite(str(scene / 'rgb' / f'{image_id:06d}.png'),
+                            cv2.cvtColor(frame.read(), cv2.COLOR_RGB2BGR))
+                cameras[str(image_id)] = {'cam_K': frame.camera.k.reshape(-1).tolist(),
+                                          'depth_scale': 1.0}
+                gts[str(image_id)] = [{'obj_id': ids[p.object_name],
+                                       'cam_R_m2c': p.rotation.reshape(-1).tolist(),
+                                       'cam_t_m2c': (p.translation * 1000.0).tolist()}
+                                      for p in labels]
+                infos[str(image_id)] = [{'bbox_obj': uv_to_bop_box(p.box_uv), 'visib_fract': 1.0,
+                                         'confidence': p.confidence} for p in labels]
+                keys[str(image_id)] = frame.key
+            for name, data in (('scene_gt.json', gts), ('scene_gt_info.json', infos),
+                               ('scene_camera.json', cameras), ('source_frames.json', keys)):
+                (scene / name).write_text(json.dumps(data, indent=1))
+            (staging / 'camera.json').write_text(json.dumps(camera_json(camera), indent=1))
+
+    def _preview(self):
+        """Write ``preview.png``: frames with accepted (green) and refused (red) labels."""
+        number = self.settings.rounds
+        verdicts = self.verdicts(number)
+        picks = np.linspace(0, len(self.frames) - 1, min(PREVIEW_FRAMES, len(self.frames)))
+        tiles = []
+        for index in np.unique(picks.astype(int)):
+            frame = self.frames[index]
+            image = frame.read().copy()
+            for verdict in verdicts.get(frame.key, []):
+                color = ACCEPTED_COLOR if verdict.accepted else REFUSED_COLOR
+                text = verdict.pose.object_name + ('' if verdict.accepted
+                                                   else f' ({verdict.verdict})')
+                draw_box_2d(image, verdict.pose.box_uv, color, 2)
+                draw_label(image, text, verdict.pose.box_uv, color)
+            tiles.append(cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA))
+        while len(tiles) % 4:
+            tiles.append(np.zeros_like(tiles[0]))
+        rows = [np.concatenate(tiles[k:k + 4], axis=1) for k in range(0, len(tiles), 4)]
+        png = cv2.imencode('.png', cv2.cvtColor(np.concatenate(rows), cv2.COLOR_RGB2BGR))[1]
+        with atomic_output(self.out / 'preview.png') as tmp:
+            tmp.write_bytes(png.tobytes())
+
+    def _params(self):
+        """Write ``params.yaml``: the base parameters with the adapted weight files."""
+        out = self.out.resolve()
+        values = dict(self.base_params, detector_weights=str(out / 'detector.pt'),
+                      qnet_weights=str(out / 'qnet.pt'), objects=list(self.models))
+        header = ('# bbpose_node parameters written by bbpose adapt: the base parameters '
+                  'with the\n# weights adapted to the recording (config/bbpose.yaml documents '
+                  'each one).\n')
+        with atomic_output(self.out / 'params.yaml') as tmp:
+            tmp.write_text(header + yaml.safe_dump({'/**': {'ros__parameters': values}},
+                                                   sort_keys=False))
+
+
+def adapted_frames(weights: Path | str, kind: str) -> set[str]:
+    """Return the fingerprints of the frames a weight file adapted on (empty: none)."""
+    metadata, _ = read_weights(weights, kind)
+    return set(metadata.get('training', {}).get(ADAPTED_ON, []))
