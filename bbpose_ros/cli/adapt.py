@@ -27,7 +27,7 @@ import shlex
 import sys
 
 from bbpose_ros.bags import topics
-from bbpose_ros.cli.common import add_dataset_argument
+from bbpose_ros.cli.common import add_blocks_argument, add_dataset_argument, in_blocks
 from bbpose_ros.core.errors import InputError
 
 
@@ -58,6 +58,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              '(default: config/bbpose.yaml with the meshes of --dataset; e.g. '
                              "bbpose add-object's params.yaml)")
     add_dataset_argument(parser)
+    add_blocks_argument(parser)
     parser.add_argument('--out', required=True, type=Path, help='output folder (resumable)')
     parser.add_argument('--rounds', type=int, default=None,
                         help='teacher-students rounds, 1..3 (default 2)')
@@ -95,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
                                             args.camera_info_topic), args.image_topic)
     else:
         frames = dataset_frames(args.dataset, args.split)
+    frames = in_blocks(frames, args.blocks, args.block_size)
     given = {'rounds': args.rounds, 'seed': args.seed}
     settings = AdaptSettings(**{k: v for k, v in given.items() if v is not None})
     models = load_bop_models(config.dataset_dir, list(config.objects))

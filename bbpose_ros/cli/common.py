@@ -15,14 +15,17 @@
 """Argument helpers shared by the subcommands."""
 
 import argparse
+from collections.abc import Collection, Sequence
 from dataclasses import replace
 import os
 from pathlib import Path
 from typing import TypeVar
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
+from bbpose_ros.core.errors import InputError
 
 Config = TypeVar('Config')
+Item = TypeVar('Item')
 SCENE_STYLES = ('random', 'table')
 
 
@@ -71,6 +74,39 @@ def float_pair(text: str) -> tuple[float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected LOW,HIGH, got {text!r}')
     return low, high
+
+
+def add_blocks_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--blocks 1,3,5`` and ``--block-size N``: whole blocks of consecutive frames."""
+    parser.add_argument('--blocks', type=_block_numbers, default=None, metavar='K,K,...',
+                        help='use only these blocks of --block-size consecutive frames (in '
+                             'scene and image id order, first block 1): e.g. adapt on '
+                             '1,3,5 and score 2,4, so that no scored frame neighbours an '
+                             'adapted one (default: all frames)')
+    parser.add_argument('--block-size', type=int, default=20,
+                        help='frames a block of --blocks (default %(default)s)')
+
+
+def in_blocks(items: Sequence[Item], blocks: Collection[int] | None,
+              size: int) -> list[Item]:
+    """Keep the ``items`` of the 1-based ``blocks`` of ``size`` consecutive ones (None: all)."""
+    if blocks is None:
+        return list(items)
+    if size < 1:
+        raise InputError(f'--block-size must be at least 1, got {size}')
+    count = -(-len(items) // size)
+    outside = sorted(b for b in blocks if not 1 <= b <= count)
+    if outside:
+        raise InputError(f'--blocks {outside[0]}: the {len(items)} frames make {count} '
+                         f'blocks of {size}')
+    return [item for k, item in enumerate(items) if k // size + 1 in blocks]
+
+
+def _block_numbers(text: str) -> set[int]:
+    try:
+        return {int(part) for part in text.split(',') if part}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'blocks are comma-separated numbers, got {text!r}')
 
 
 def add_frames_argument(parser: argparse.ArgumentParser) -> None:

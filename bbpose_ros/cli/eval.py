@@ -22,8 +22,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
-from bbpose_ros.cli.common import (add_dataset_argument, add_frames_argument,
-                                   add_objects_argument, float_pair)
+from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
+                                   add_frames_argument, add_objects_argument, float_pair,
+                                   in_blocks)
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.errors import InputError
@@ -82,6 +83,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='seed of the --perturb-gt perturbations (default %(default)s)')
     add_objects_argument(parser)
     add_frames_argument(parser)
+    add_blocks_argument(parser)
     parser.add_argument('--min-visib', type=float, default=0.1,
                         help='count instances at least this visible (default %(default)s)')
     parser.add_argument('--json', type=Path, default=None,
@@ -190,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset, args.split)
     models = dataset.load_models(args.objects)
-    frames = without_adapted(dataset.frames()[:args.max_frames], weight_files(args),
+    frames = in_blocks(dataset.frames(), args.blocks, args.block_size)[:args.max_frames]
+    frames = without_adapted(frames, weight_files(args),
                              args.skip_adapted)
     if not frames:
         raise InputError(f'no frames to score in {args.dataset / args.split}')

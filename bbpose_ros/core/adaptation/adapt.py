@@ -365,6 +365,25 @@ class Adaptation:
                                                    sort_keys=False))
 
 
+def read_rounds(out: Path | str) -> dict[str, dict[str, list[Verdict]]]:
+    """
+    {'round<r>': {frame key: [Verdict]}} of an output folder's finished selections.
+
+    Read from each round's ``teacher.json`` and ``verdicts.json`` (the verdicts as they were
+    given, whatever the settings now).
+    """
+    rounds = {}
+    for folder in sorted(Path(out).glob('round[0-9]')):
+        if not (folder / 'verdicts.json').is_file():
+            continue
+        poses = json.loads((folder / 'teacher.json').read_text())
+        verdicts = json.loads((folder / 'verdicts.json').read_text())
+        rounds[folder.name] = {
+            key: [Verdict(TeacherPose.from_record(p), v['verdict'])
+                  for p, v in zip(poses[key], judged)] for key, judged in verdicts.items()}
+    return rounds
+
+
 def adapted_frames(weights: Path | str, kind: str) -> set[str]:
     """Return the fingerprints of the frames a weight file adapted on (empty: none)."""
     metadata, _ = read_weights(weights, kind)

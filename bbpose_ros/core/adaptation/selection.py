@@ -70,9 +70,9 @@ class SelectionSettings:
 
     min_detection_score: float = 0.3
     keep: float = 0.5
-    min_confidence: float = 0.5
+    min_confidence: float = 0.6
     min_box_iou: float = 0.5
-    consistency_mm: float = 25.0
+    consistency_mm: float = 60.0
 
     def __post_init__(self) -> None:
         for name in ('min_detection_score', 'min_confidence', 'min_box_iou'):
