@@ -23,7 +23,7 @@ import torch
 
 from bbpose_ros.cli.common import in_blocks
 from bbpose_ros.cli.main import main
-from bbpose_ros.core.adaptation.adapt import adapted_frames, read_rounds
+from bbpose_ros.core.adaptation.adapt_stages import adapted_frames, read_rounds
 from bbpose_ros.core.adaptation.frames import dataset_frames, image_fingerprint
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions, write_label_set
 from bbpose_ros.core.adaptation.selection import select_labels, SelectionSettings, Verdict

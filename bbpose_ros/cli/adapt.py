@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``bbpose adapt``; returns the exit status."""
     import torch
 
-    from bbpose_ros.core.adaptation.adapt import Adaptation, AdaptSettings
+    from bbpose_ros.core.adaptation.adapt_stages import Adaptation, AdaptSettings
     from bbpose_ros.core.adaptation.frames import bag_frames, dataset_frames
     from bbpose_ros.core.data.models import load_bop_models
     from bbpose_ros.core.inference.weights import (DEFAULT_DENSE_WEIGHTS,

@@ -145,7 +145,7 @@ def without_adapted(frames: Sequence[BopFrame], weights: WeightFiles,
     A frame is recognised by its pixels (``adaptation.frames.image_fingerprint``), wherever
     it is read from. Raises InputError naming the first such frame without ``skip``.
     """
-    from bbpose_ros.core.adaptation.adapt import adapted_frames
+    from bbpose_ros.core.adaptation.adapt_stages import adapted_frames
     from bbpose_ros.core.adaptation.frames import image_fingerprint
     adapted = set()
     for kind in ('detector', 'qnet'):

@@ -45,7 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Score every round's labels, print a table per round; returns 0."""
-    from bbpose_ros.core.adaptation.adapt import read_rounds
+    from bbpose_ros.core.adaptation.adapt_stages import read_rounds
     from bbpose_ros.core.data.bop import BopDataset
     from bbpose_ros.core.eval.label_precision import label_precision
     from bbpose_ros.core.files import write_json_atomic

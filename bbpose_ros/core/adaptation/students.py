@@ -17,7 +17,7 @@ The students: the detector's and Q-Net's last layers learn from the pseudo-label
 
 Both students keep the shared layers as they are and retrain only the layers that read
 them, from their shipped values, on features the frozen layers compute once per augmented
-copy of each labelled frame (as ``new_object`` adds an object): a few hundred frames cannot
+copy of each labelled frame (as ``object_rows`` adds an object): a few hundred frames cannot
 retrain a trunk, and the frozen trunk cannot forget the renders' features.
 
 * Detector (``adapt_detector``): its 1x1 box head learns the labels' amodal box sides
@@ -31,7 +31,7 @@ retrain a trunk, and the frozen trunk cannot forget the renders' features.
   the renders taught.
 * Q-Net (``adapt_qnet``): its head rows (all objects) on crops around the labels' boxes,
   jittered as the detector's boxes are, against the labels' rotations
-  (``new_object.fit_new_rows`` with every object's rows).
+  (``object_rows.fit_new_rows`` with every object's rows).
 """
 
 from collections.abc import Mapping
@@ -52,7 +52,7 @@ from bbpose_ros.core.training.detector_training import (DetectorBatches,
                                                         DetectorTrainSettings, focal_loss,
                                                         to_input_pixels)
 from bbpose_ros.core.training.loop import cosine_lr
-from bbpose_ros.core.training.new_object import fit_new_rows, RowTraining
+from bbpose_ros.core.training.object_rows import fit_new_rows, RowTraining
 from bbpose_ros.core.training.qnet_training import QNetTrainSettings
 
 HEATMAP_MODES = ('none', 'bias', 'all')
@@ -205,6 +205,6 @@ def adapt_qnet(network: QNet, cache: TrainingCache, models: Mapping[str, ObjectM
     validation figures on the label set's last tenth of frames (``qnet_validation``).
     """
     settings = QNetTrainSettings(min_visib=0.0, val_fraction=0.1, sign_invariant=True,
-                                 augment_style='strong')
+                                 augment='strong')
     return fit_new_rows(network, list(network.config.objects), cache, models, settings, rows,
                         seed, progress)

@@ -64,7 +64,7 @@ from bbpose_ros.core.inference.weights import load_network, read_weights, save_w
 from bbpose_ros.core.pipeline.loader import WeightFiles
 from bbpose_ros.core.synth.export import camera_json, uv_to_bop_box
 from bbpose_ros.core.training.cache import TrainingCache
-from bbpose_ros.core.training.new_object import RowTraining
+from bbpose_ros.core.training.object_rows import RowTraining
 from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
