@@ -23,7 +23,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
 from bbpose_ros.core.inference import int8_graphs
-from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path,
+from bbpose_ros.core.inference.int8_graphs import (cpu_has_int8_dot, int8_graph_path, int8_pays,
                                                    read_int8_graph)
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
@@ -63,6 +63,8 @@ def test_the_cpu_flags_decide_auto():
     assert cpu_has_int8_dot(plain.replace('avx2', 'avx2 avx512f avx512_vnni'))
     assert cpu_has_int8_dot(plain.replace('fma', 'fma avx_vnni'))
     assert not cpu_has_int8_dot('')
+    assert int8_pays(plain) and not cpu_has_int8_dot(plain)
+    assert not int8_pays(plain.replace(' avx2', ''))
 
 
 @pytest.mark.parametrize('kind, path, weights', [
@@ -93,7 +95,7 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
     shutil.copy(DEFAULT_DETECTOR_WEIGHTS, weights)
     auto, shipped = PipelineOptions(), DEFAULT_DETECTOR_WEIGHTS
     choose = int8_graphs.choose_int8_graph
-    monkeypatch.setattr(int8_graphs, 'cpu_has_int8_dot', lambda: True)
+    monkeypatch.setattr(int8_graphs, 'int8_pays', lambda: True)
     assert choose(auto, weights, 'detector') is None
     assert choose(auto, shipped, 'detector') is not None
     assert choose(auto, DEFAULT_QNET_WEIGHTS, 'qnet') is not None
@@ -103,7 +105,7 @@ def test_precision_choice_at_load(tmp_path, monkeypatch):
     assert choose(torch_backend, shipped, 'detector') is None
     fp32 = PipelineOptions(inference_precision='fp32')
     assert choose(fp32, shipped, 'detector') is None
-    monkeypatch.setattr(int8_graphs, 'cpu_has_int8_dot', lambda: False)
+    monkeypatch.setattr(int8_graphs, 'int8_pays', lambda: False)
     assert choose(auto, shipped, 'detector') is None
     int8 = PipelineOptions(inference_precision='int8')
     assert choose(int8, shipped, 'detector') is not None

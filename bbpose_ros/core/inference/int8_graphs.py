@@ -51,6 +51,10 @@ OUTPUT_NAMES = {'detector': ('heatmap_logits', 'box_log'),
 # Instruction-set flags (Linux /proc/cpuinfo) under which ONNX Runtime's int8 kernels use
 # integer dot products.
 INT8_DOT_FLAGS = ('avx512_vnni', 'avx_vnni', 'amx_int8')
+# Flags of the CPUs where 'auto' runs the int8 graphs: those with int8 dot products, and
+# AVX2 ones without, where the int8 graphs measured faster than float at the same accuracy
+# (docs/performance.md, both classes of CPU).
+INT8_AUTO_FLAGS = INT8_DOT_FLAGS + ('avx2',)
 
 
 def int8_kind(network: str) -> str:
@@ -69,24 +73,34 @@ def file_sha256(path: Path | str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def cpu_has_int8_dot(cpuinfo: str | None = None) -> bool:
+def cpu_flags(cpuinfo: str | None = None) -> set[str]:
     """
-    Tell whether the CPU has int8 dot-product instructions (``INT8_DOT_FLAGS``).
+    Return the CPU's instruction-set flags.
 
     Args:
-        cpuinfo: the text of /proc/cpuinfo (default: read it; False where there is none).
+        cpuinfo: the text of /proc/cpuinfo (default: read it; no flags where there is none).
 
     """
     if cpuinfo is None:
         try:
             cpuinfo = Path('/proc/cpuinfo').read_text()
         except OSError:
-            return False
+            return set()
     flags = set()
     for line in cpuinfo.splitlines():
         if line.startswith('flags'):
             flags.update(line.partition(':')[2].split())
-    return any(flag in flags for flag in INT8_DOT_FLAGS)
+    return flags
+
+
+def cpu_has_int8_dot(cpuinfo: str | None = None) -> bool:
+    """Tell whether the CPU has int8 dot-product instructions (``INT8_DOT_FLAGS``)."""
+    return bool(cpu_flags(cpuinfo) & set(INT8_DOT_FLAGS))
+
+
+def int8_pays(cpuinfo: str | None = None) -> bool:
+    """Tell whether 'auto' runs the int8 graphs on this CPU (``INT8_AUTO_FLAGS``)."""
+    return bool(cpu_flags(cpuinfo) & set(INT8_AUTO_FLAGS))
 
 
 def read_int8_graph(path: Path | str, weights: Path | str, network: str):
@@ -128,15 +142,15 @@ def choose_int8_graph(options: PipelineOptions, weights: Path | str, network: st
     Return the int8 graph ``network`` runs under ``options.inference_precision``, or None (float).
 
     'int8' reads ``int8_graph_path(weights)`` and raises InputError when it is missing or
-    made from other weights; 'auto' takes it only with the onnxruntime backend on a CPU with
-    int8 dot products, and where it is missing or does not fit runs the float network.
+    made from other weights; 'auto' takes it only with the onnxruntime backend on a CPU where
+    it pays (``int8_pays``), and where it is missing or does not fit runs the float network.
     """
     if options.inference_precision == 'fp32' or options.inference_backend != 'onnxruntime':
         return None
     path = int8_graph_path(weights)
     if options.inference_precision == 'int8':
         return read_int8_graph(path, weights, network)
-    if not cpu_has_int8_dot():
+    if not int8_pays():
         return None
     try:
         return read_int8_graph(path, weights, network)

@@ -144,8 +144,8 @@ class PipelineOptions:
         choices=BACKENDS)
     inference_precision: str = _setting(
         'auto', 'What the detector and Q-Net run as: fp32, int8 (the int8 graph <weights '
-        'stem>_int8.onnx beside each weight file; onnxruntime only) or auto (int8 on a CPU '
-        'with int8 dot-product instructions where those graphs exist, else fp32).',
+        'stem>_int8.onnx beside each weight file; onnxruntime only) or auto (int8 where those '
+        'graphs exist on a CPU with AVX2 or int8 dot-product instructions, else fp32).',
         choices=PRECISIONS)
     device: str = _setting(
         'cpu', 'Torch device of the networks: cpu, cuda or cuda:N (cuda needs the torch '
