@@ -108,6 +108,26 @@ config: $(STAMP)
 clean:
 	rm -rf build install log $(OUT) .pytest_cache
 
+# `bbpose adapt`'s honest protocol on the dev frames: five blocks of 20 consecutive frames;
+# adapt on the images of blocks 1, 3, 5 and score 2, 4, then the other way round; the
+# shipped weights scored on the same frames; paired over all 100 (docs/training.md).
+ADAPT_OUT ?= $(OUT)/adapt_check
+.PHONY: adapt-check
+adapt-check: setup
+	@set -e; for fold in 1,3,5:2,4 2,4:1,3,5; do \
+		adapt=$${fold%%:*}; score=$${fold##*:}; name=$$(echo $$adapt | tr -d ,); \
+		$(BIN)/bbpose adapt --dataset $(DATASET) --blocks $$adapt --out $(ADAPT_OUT)/adapt_$$name; \
+		$(BIN)/bbpose score-labels $(ADAPT_OUT)/adapt_$$name --dataset $(DATASET) \
+			--json docs/reports/adapt_labels_$$name.json; \
+		$(BIN)/bbpose eval --dataset $(DATASET) --boxes detector --blocks $$score \
+			--json $(ADAPT_OUT)/shipped_$$name.json; \
+		$(BIN)/bbpose eval --dataset $(DATASET) --boxes detector --blocks $$score \
+			--params $(ADAPT_OUT)/adapt_$$name/params.yaml --json $(ADAPT_OUT)/adapted_$$name.json; \
+	done
+	$(BIN)/bbpose compare $(ADAPT_OUT)/shipped_135.json,$(ADAPT_OUT)/shipped_24.json \
+		$(ADAPT_OUT)/adapted_135.json,$(ADAPT_OUT)/adapted_24.json --objects \
+		--json docs/reports/adapt_compare.json
+
 # Background photographs for training renders (`bbpose train render --backgrounds`):
 # Debian's wallpaper packages, unpacked outside the repository (once).
 CACHE ?= $(HOME)/.cache/bbpose

@@ -18,7 +18,8 @@ import argparse
 from pathlib import Path
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.eval.paired import compare, format_comparison, read_instances
+from bbpose_ros.core.eval.paired import (compare, compare_objects, format_comparison,
+                                         format_objects, read_runs)
 from bbpose_ros.core.files import write_json_atomic
 
 
@@ -32,8 +33,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'B - A and its bootstrap interval: recall of found, ADD(-S), 5 cm / 5 '
                     'deg and 5 px over the paired instances, and the medians of the '
                     'translation, rotation and ADD errors over those both found.')
-    parser.add_argument('a', type=Path, help='report A (R.json or R.instances.json)')
-    parser.add_argument('b', type=Path, help='report B')
+    parser.add_argument('a', type=_paths, help='report A (R.json or R.instances.json); '
+                        'several reports of disjoint frames joined by commas make one run '
+                        '(the folds of a cross-validation)')
+    parser.add_argument('b', type=_paths, help='report B (likewise)')
+    parser.add_argument('--objects', action='store_true',
+                        help='also compare object by object (found, ADD(-S), 5 px)')
     parser.add_argument('--resamples', type=int, default=2000,
                         help='bootstrap resamples (default %(default)s)')
     parser.add_argument('--level', type=float, default=0.95,
@@ -49,10 +54,18 @@ def run(args: argparse.Namespace) -> int:
     """Compare, print the table, write the JSON; returns the exit code."""
     if not 0.0 < args.level < 1.0 or args.resamples < 1:
         raise InputError('--level must be in (0, 1) and --resamples >= 1')
-    figures = compare(read_instances(args.a), read_instances(args.b), args.resamples,
-                      args.level, args.seed)
-    print(format_comparison(figures, (str(args.a), str(args.b)), args.level))
+    a, b = read_runs(args.a), read_runs(args.b)
+    figures = compare(a, b, args.resamples, args.level, args.seed)
+    names = [','.join(map(str, paths)) for paths in (args.a, args.b)]
+    print(format_comparison(figures, names, args.level))
+    report = {'a': names[0], 'b': names[1], 'level': args.level, 'figures': figures}
+    if args.objects:
+        report['objects'] = compare_objects(a, b, args.resamples, args.level, args.seed)
+        print('\n' + format_objects(report['objects']))
     if args.json is not None:
-        write_json_atomic(args.json, {'a': str(args.a), 'b': str(args.b),
-                                      'level': args.level, 'figures': figures})
+        write_json_atomic(args.json, report)
     return 0
+
+
+def _paths(text: str) -> list[Path]:
+    return [Path(part) for part in text.split(',') if part]

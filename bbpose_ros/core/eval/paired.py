@@ -68,6 +68,47 @@ def read_instances(path: Path | str) -> dict[str, dict[str, Any]]:
     return {f'{r["object"]}@{r["key"]}': r for r in records}
 
 
+def read_runs(paths: Sequence[Path | str]) -> dict[str, dict[str, Any]]:
+    """
+    Read the instance records of several reports of disjoint frames as one run.
+
+    The folds of a cross-validation (e.g. ``bbpose adapt`` on some blocks of frames, scored
+    on the others) each score their own frames; together they cover them all. Raises
+    InputError when two reports score the same instance.
+    """
+    merged = {}
+    for path in paths:
+        records = read_instances(path)
+        shared = sorted(set(records) & set(merged))
+        if shared:
+            raise InputError(f'{path} scores instances another report scores too (first: '
+                             f'{shared[0]}); give reports of disjoint frames')
+        merged.update(records)
+    return merged
+
+
+def compare_objects(a: Mapping[str, Mapping[str, Any]], b: Mapping[str, Mapping[str, Any]],
+                    resamples: int = 2000, level: float = 0.95,
+                    seed: int = 0) -> dict[str, dict[str, dict[str, float]]]:
+    """{object: ``compare`` over that object's instances}, objects in name order."""
+    names = sorted({r['object'] for r in a.values()} & {r['object'] for r in b.values()})
+    return {name: compare({k: r for k, r in a.items() if r['object'] == name},
+                          {k: r for k, r in b.items() if r['object'] == name},
+                          resamples, level, seed) for name in names}
+
+
+def format_objects(figures: Mapping[str, Mapping[str, Mapping[str, float]]],
+                   names: Sequence[str] = ('found', 'add_s', 'proj5px')) -> str:
+    """Make a per-object table: each figure's B - A and its interval."""
+    header = f'{"object":<13}{"n":>5}' + ''.join(f'{name + " B - A":>26}' for name in names)
+    lines = [header, '-' * len(header)]
+    for obj, rows in figures.items():
+        cells = ''.join(f'{rows[n]["diff"]:>+8.3f} [{rows[n]["low"]:+.3f}, '
+                        f'{rows[n]["high"]:+.3f}]' for n in names)
+        lines.append(f'{obj:<13}{rows[names[0]]["n"]:>5d}{cells}')
+    return '\n'.join(lines)
+
+
 def compare(a: Mapping[str, Mapping[str, Any]], b: Mapping[str, Mapping[str, Any]],
             resamples: int = 2000, level: float = 0.95, seed: int = 0
             ) -> dict[str, dict[str, float]]:
