@@ -22,7 +22,8 @@ import pytest
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.paired import compare, format_comparison, instances_path
-from bbpose_ros.core.eval.paired import read_instances
+from bbpose_ros.core.eval.paired import (compare_objects, format_objects, read_instances,
+                                         read_runs)
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 
@@ -66,3 +67,23 @@ def test_runs_without_shared_instances_or_records_are_refused(tmp_path):
     instances_path(tmp_path / 'r.json').write_text(json.dumps({'not': 'records'}))
     with pytest.raises(InputError, match='not a list of instance records'):
         read_instances(tmp_path / 'r.json')
+
+
+def test_folds_join_into_one_run_and_objects_compare_alone(lmo_frames, lmo_models, tmp_path):
+    exact, turned = records(lmo_frames, lmo_models), records(lmo_frames, lmo_models,
+                                                             (10.0, 0.02))
+    keys = sorted(exact)
+    halves = [{k: exact[k] for k in keys[:5]}, {k: exact[k] for k in keys[5:]}]
+    paths = []
+    for k, half in enumerate(halves):
+        paths.append(tmp_path / f'fold{k}.json')
+        instances_path(paths[-1]).write_text(json.dumps(list(half.values())))
+    assert read_runs(paths) == exact
+    with pytest.raises(InputError, match='disjoint frames'):
+        read_runs([paths[0], paths[0]])
+    figures = compare_objects(exact, turned)
+    assert sorted(figures) == sorted({r['object'] for r in exact.values()})
+    for name, rows in figures.items():
+        assert rows['found']['n'] == sum(r['object'] == name for r in exact.values())
+        assert rows['cm5deg5']['diff'] == -1.0
+    assert 'cm5deg5 B - A' in format_objects(figures, ('found', 'cm5deg5'))
