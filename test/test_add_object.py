@@ -87,6 +87,9 @@ def test_the_networks_grow_by_one_object_and_keep_the_others(added):
     for graph in ('detector_int8.onnx', 'qnet_int8.onnx', 'preview.png'):
         assert (added / graph).stat().st_size > 0
     assert NAME in load_bop_models(added / 'dataset')
+    # The renders are gone once nothing reads them; memory and disk are stated.
+    assert not (added / 'renders').exists()
+    assert report['peak_rss_mb'] > 100 and 0 < report['disk_mb'] < 100
 
 
 @pytest.mark.slow   # renders and trains
@@ -97,6 +100,7 @@ def test_a_second_run_resumes_and_other_inputs_are_refused(lmo_root, red_box, ad
               lmo_root, added, TINY, progress=False, log=lines.append).run()
     assert (added / 'detector.pt').stat().st_mtime_ns == before
     assert any(line.startswith('[detector] done before') for line in lines)
+    assert not any(line.startswith('[renders]') for line in lines)     # not made again
     with pytest.raises(InputError, match='symmetries'):
         AddObject(AddedObject(NAME, red_box, axis_symmetries(red_box, 'z', 2)),
                   base_weight_files(WEIGHTS_DIR), lmo_root, added, TINY).run()

@@ -62,6 +62,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help='crops to render for Q-Net and the dense net (default 8000)')
     add.add_argument('--seed', type=int, default=None, help='seed of renders and training')
     add.add_argument('--workers', type=int, default=2, help='rendering processes')
+    add.add_argument('--keep-renders', action='store_true',
+                     help='keep renders/ (the training renders, hundreds of MB) when done')
     add.add_argument('--threads', type=int, default=None,
                      help='torch threads (default: all cores)')
     add.set_defaults(func=run)
@@ -122,14 +124,17 @@ def run(args: argparse.Namespace) -> int:
     backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
     task = AddObject(AddedObject(args.name, mesh, symmetries),
                      base_weight_files(args.base_weights), args.dataset, args.out, settings,
-                     backgrounds, command=' '.join(sys.argv))
+                     backgrounds, command=' '.join(sys.argv), keep_renders=args.keep_renders)
     report = task.run()
     print(f'\n{args.name} added in {report["seconds"]["total"] / 60:.1f} min '
-          f'({os.cpu_count()} CPU cores); on held-out renders:')
+          f'({os.cpu_count()} CPU cores, peak memory {report["peak_rss_mb"] / 1024:.1f} GB, '
+          f'{report["disk_mb"]:.0f} MB in {args.out}); on held-out renders:')
     for kind, figures in report.get('held_out_renders', {}).items():
         print(f'  {kind:9s}' + json.dumps({k: round(v, 3) for k, v in figures.items()}))
-    print(f'preview: {args.out / "preview.png"}\nnode: ros2 run bbpose_ros bbpose_node '
-          f'--ros-args --params-file {args.out / "params.yaml"}')
+    params = args.out / 'params.yaml'
+    print(f'preview: {args.out / "preview.png"}\nnode: .venv/bin/bbpose_node --ros-args '
+          f'--params-file {params}\n  (with colcon: ros2 run bbpose_ros bbpose_node '
+          f'--ros-args --params-file {params})')
     return 0
 
 

@@ -37,9 +37,9 @@ refused rather than mixing two objects' files.
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
-import hashlib
 import json
 from pathlib import Path
+import resource
 import shutil
 import time
 from typing import Any
@@ -53,6 +53,7 @@ from bbpose_ros.core.data.models import (load_bop_models, load_models_info, NAME
                                          object_names)
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output, write_json_atomic
+from bbpose_ros.core.fingerprints import sha256_of_arrays
 from bbpose_ros.core.inference.int8_graphs import file_sha256, int8_graph_path
 from bbpose_ros.core.inference.weights import load_network, save_weights
 from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
@@ -168,13 +169,16 @@ class AddObject:
         progress: show tqdm bars.
         log: callable(str) for one line per stage.
         command: the command line, recorded in the report and the weight files.
+        keep_renders: keep ``renders/`` when done (by default removed: the networks and
+            int8 graphs no longer need it, and it is the folder's bulk).
 
     """
 
     def __init__(self, new: AddedObject, base_weights: Mapping[str, Path], base_dataset: Path,
                  out: Path, settings: AddObjectSettings, backgrounds=None,
                  progress: bool = True, log: Callable[[str], None] = print,
-                 command: str = '') -> None:
+                 command: str = '', keep_renders: bool = False) -> None:
+        self.keep_renders = keep_renders
         self.new, self.base_weights = new, {k: Path(v) for k, v in base_weights.items()}
         self.base_dataset, self.out = Path(base_dataset), Path(out)
         self.settings, self.backgrounds = settings, backgrounds
@@ -202,14 +206,23 @@ class AddObject:
                            settings=asdict(self.settings), git_commit=git_commit())
         self.report.setdefault('seconds', {})
         self._stage('dataset', self._dataset, self.out / 'dataset')
-        self._stage('renders', self._renders, None)
+        if not (self.out / 'preview.png').exists():       # the renders' last reader
+            self._stage('renders', self._renders, None)
         for kind in NETWORKS:
             self._stage(kind, lambda kind=kind: self._network(kind), self.out / f'{kind}.pt')
         self._stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
         self._stage('preview', self._preview, self.out / 'preview.png')
         self._params()
+        if not self.keep_renders and (self.out / 'renders').exists():
+            size = _folder_bytes(self.out / 'renders')
+            shutil.rmtree(self.out / 'renders')
+            self.log(f'[renders] removed ({size / 2 ** 20:.0f} MB; --keep-renders keeps them)')
         self.report['seconds']['total'] = round(sum(
             v for k, v in self.report['seconds'].items() if k != 'total'), 1)
+        self.report['peak_rss_mb'] = round(max(
+            resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF,
+                                                          resource.RUSAGE_CHILDREN)) / 1024)
+        self.report['disk_mb'] = round(_folder_bytes(self.out) / 2 ** 20, 1)
         write_json_atomic(report_path, self.report)
         return self.report
 
@@ -226,7 +239,7 @@ class AddObject:
 
     def _check_inputs(self):
         """Write ``inputs.json``, or refuse a folder made from other inputs."""
-        inputs = {'name': self.new.name, 'mesh_sha256': _sha256_of_arrays(
+        inputs = {'name': self.new.name, 'mesh_sha256': sha256_of_arrays(
                       self.new.mesh.vertices, self.new.mesh.faces, self.new.mesh.colors),
                   'symmetries': np.round(self.new.symmetries, 6).tolist(),
                   'base_weights': {k: file_sha256(v) for k, v in self.base_weights.items()},
@@ -394,8 +407,6 @@ def write_params_file(path: Path, parameters: Mapping[str, Any]) -> None:
         tmp.write_text('\n'.join(lines) + '\n')
 
 
-def _sha256_of_arrays(*arrays: np.ndarray) -> str:
-    digest = hashlib.sha256()
-    for array in arrays:
-        digest.update(np.ascontiguousarray(array).tobytes())
-    return digest.hexdigest()
+def _folder_bytes(folder: Path) -> int:
+    """Total size of the files under ``folder``, bytes."""
+    return sum(path.stat().st_size for path in folder.rglob('*') if path.is_file())
