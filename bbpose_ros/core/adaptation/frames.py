@@ -24,13 +24,13 @@ them.
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-import hashlib
 from pathlib import Path
 
 import numpy as np
 
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.fingerprints import sha256_of_arrays
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 
@@ -53,10 +53,8 @@ class RecordedFrame:
 
 def image_fingerprint(image_rgb: np.ndarray) -> str:
     """Return the SHA-256 hex digest of an (H, W, 3) uint8 image's pixels and shape."""
-    image = np.ascontiguousarray(image_rgb, dtype=np.uint8)
-    digest = hashlib.sha256(str(image.shape).encode())
-    digest.update(image.tobytes())
-    return digest.hexdigest()
+    image = np.asarray(image_rgb, dtype=np.uint8)
+    return sha256_of_arrays(image, text=str(image.shape))
 
 
 def dataset_frames(root: Path | str, split: str = 'test') -> list[RecordedFrame]:

@@ -184,7 +184,7 @@ def adapt_detector(network: CenterBoxNet, cache: TrainingCache, regions: IgnoreR
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        bar.set_postfix(loss=f'{float(loss.detach()):.4f}')
+        bar.set_postfix(loss=f'{float(loss.detach()):.4f}', refresh=False)
     with torch.no_grad():
         after = float(loss_of(first, False))
         network.heatmap.weight.copy_(params[0])

@@ -287,7 +287,7 @@ def _fit_rows(task, cached, start, apply, rows, rng, progress):
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        bar.set_postfix(loss=f'{float(loss.detach()):.4f}')
+        bar.set_postfix(loss=f'{float(loss.detach()):.4f}', refresh=False)
     return weight.detach(), bias.detach()
 
 
