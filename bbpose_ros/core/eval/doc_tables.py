@@ -59,6 +59,10 @@ REPORT_COMMANDS = {
     'bench': _BENCH,
     'bench_fp32': f'{_BENCH} --param inference_precision:=fp32',
     'bench_graph': f'{_BENCH} --graph',
+    # bbpose adapt's two-fold block protocol (the Makefile's adapt-check target).
+    'adapt_compare': 'make adapt-check',
+    'adapt_labels_135': 'make adapt-check',
+    'adapt_labels_24': 'make adapt-check',
 }
 
 _NETWORKS = Column('networks', ('config.detector_network', 'config.qnet_network'), '{}')
@@ -176,6 +180,27 @@ TABLES = {
     'results_gt_norefine': ObjectsTable('docs/results.md', 'eval_gt_norefine', _PER_OBJECT),
     'results_bbox_equation': ObjectsTable('docs/results.md', 'eval_gt_gt_norefine',
                                           _PER_OBJECT),
+    # docs/training.md: bbpose adapt, adapted against shipped, paired over both folds
+    'training_adapt_paired': ObjectsTable(
+        'docs/training.md', 'adapt_compare',
+        (Column('ADD(-S): shipped / adapted', ('{o}.add_s.a', '{o}.add_s.b')),)
+        + tuple(column for title, key in (('found', 'found'), ('ADD(-S)', 'add_s'),
+                                          ('5 cm / 5 deg', 'cm5deg5'), ('proj 5 px', 'proj5px'))
+                for column in (Column(f'{title}: adapted - shipped', (f'{{o}}.{key}.diff',),
+                                      '{:+.3f}'),
+                               Column('95 % interval', (f'{{o}}.{key}.low', f'{{o}}.{key}.high'),
+                                      '{:+.3f}'))),
+        last=('figures', '**all instances**')),
+    'training_adapt_labels': RunsTable(
+        'docs/training.md',
+        tuple(column for name in ('round1', 'round2') for column in (
+            Column(f'{name}: labels', (f'{name}.accepted_all.count',), '{:.0f}'),
+            Column('right', (f'{name}.accepted_all.right',), '{:.2f}'),
+            Column('box IoU median', (f'{name}.accepted_all.box_iou_median',), '{:.2f}'),
+            Column('translation median (mm)', (f'{name}.accepted_all.te_median_mm',),
+                   '{:.0f}'))),
+        (('adapted on blocks 1, 3, 5', 'adapt_labels_135'),
+         ('adapted on blocks 2, 4', 'adapt_labels_24')), first='fold'),
     # docs/refinement.md
     'refinement_basin': ListTable(
         'docs/refinement.md', 'eval_gt_gt_sweep', 'sweep',

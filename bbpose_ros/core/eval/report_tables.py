@@ -97,15 +97,17 @@ class RunsTable:
 @dataclass(frozen=True)
 class ObjectsTable:
     """
-    One row per object of an eval report, then the mean.
+    One row per object of a report, then the row of all objects.
 
-    In the columns' keys ``{o}`` stands for ``objects.NAME`` (``mean`` in the mean row) and
-    ``{d}`` for ``detection.NAME`` (``detection.mean``).
+    In the columns' keys ``{o}`` stands for ``objects.NAME`` (``last`` in the last row) and
+    ``{d}`` for ``detection.NAME`` (``detection.mean``). ``last`` is the report's key of the
+    figures over all objects: an eval report's ``mean``, a comparison's pooled ``figures``.
     """
 
     doc: str
     report: str
     columns: tuple[Column, ...]
+    last: tuple[str, str] = ('mean', '**mean**')
 
     def reports(self) -> list[str]:
         """Name the reports the table reads."""
@@ -115,13 +117,14 @@ class ObjectsTable:
         """Make the table's markdown lines."""
         report = load(self.report)
         body = []
-        for name in list(report.get('objects', {})) + ['mean']:
-            where = {'o': 'mean' if name == 'mean' else f'objects.{name}',
-                     'd': f'detection.{name}'}
+        key, label = self.last
+        for name in list(report.get('objects', {})) + [None]:
+            where = {'o': key if name is None else f'objects.{name}',
+                     'd': f'detection.{name or "mean"}'}
             cells = [cell(load(c.report or self.report),
                           Column(c.title, tuple(k.format(**where) for k in c.keys), c.fmt))
                      for c in self.columns]
-            body.append(['**mean**' if name == 'mean' else name] + cells)
+            body.append([label if name is None else name] + cells)
         return markdown_table(['object'] + [c.title for c in self.columns], body)
 
 
@@ -226,7 +229,10 @@ def caption(table: Table, load: Loader) -> str:
     benches = [load(name) for name in names if 'stages' in load(name) or 'latency' in
                load(name)]
     if not benches:
-        return f'*`bbpose eval`; {made}.*'
+        tool = 'bbpose compare' if all('figures' in load(name) for name in names) else \
+            'bbpose score-labels' if all('round1' in load(name) for name in names) else \
+            'bbpose eval'
+        return f'*`{tool}`; {made}.*'
     cpus = {str(b.get('cpu', 'an unrecorded CPU')) for b in benches}
     if len(cpus) > 1:
         raise InputError(f'{", ".join(names)} come from different CPUs: {sorted(cpus)}')
