@@ -40,6 +40,11 @@ class StageTimer:
         self.timings_ms: dict[str, float] = {}
         self._start = self._last = time.perf_counter()
 
+    @property
+    def start_s(self) -> float:
+        """Return the ``perf_counter`` seconds the timer started at."""
+        return self._start
+
     def lap(self, stage: str | None) -> None:
         """Record the time since the last lap under ``stage`` (None: skip it unrecorded)."""
         now = time.perf_counter()

@@ -17,7 +17,11 @@ Frame counters and stage latencies of the node, as a diagnostic_msgs/DiagnosticA
 
 Latencies are milliseconds: the pipeline's stages (detector, rotation, translation, total)
 and ``node`` (image received -> results published), each as median and p95 over the last
-``window`` frames; values are named ``<stage>_ms_median`` and ``<stage>_ms_p95``.
+``window`` frames; values are named ``<stage>_ms_median`` and ``<stage>_ms_p95``. Each
+stage's rate over the same frames is ``<stage>_per_s`` (frames with that stage per second of
+the window): ``total_per_s`` the frames answered, ``tracking_per_s`` those tracked and, in
+stream mode, ``stream_job_per_s`` the background jobs adopted, whose ``stream_job`` latency
+is how long the full pipeline ran and ``stream_age`` how old their poses were when adopted.
 
 Besides the counters, conditions that last (``InputWatch``: no image for a while, a
 publisher whose QoS keeps its messages away) hold the level at WARN for as long as they do,
@@ -49,7 +53,7 @@ class NodeStats:
     def __init__(self, window: int = 1000) -> None:
         self._lock = threading.Lock()
         self._counts = Counter()
-        self._timings = deque(maxlen=window)
+        self._timings = deque(maxlen=window)     # (time.monotonic() s, {stage: ms})
         self._reported = (0, 0)     # (drops, warnings) at the previous status
 
     def count(self, key: str) -> None:
@@ -57,10 +61,11 @@ class NodeStats:
         with self._lock:
             self._counts[key] += 1
 
-    def add_timings(self, timings_ms: Mapping[str, float]) -> None:
-        """Record one answered frame's {stage: ms}."""
+    def add_timings(self, timings_ms: Mapping[str, float], now_s: float | None = None) -> None:
+        """Record one answered frame's {stage: ms}, answered at ``now_s`` (monotonic s)."""
         with self._lock:
-            self._timings.append(dict(timings_ms))
+            self._timings.append((time.monotonic() if now_s is None else now_s,
+                                  dict(timings_ms)))
 
     def status(self, name: str, state: str = 'active', failure: str | None = None,
                conditions: Sequence[str] = ()) -> DiagnosticStatus:
@@ -74,7 +79,8 @@ class NodeStats:
         """
         with self._lock:
             counts = {key: self._counts[key] for key in COUNTERS}
-            summary = timing_summary(list(self._timings))
+            summary = timing_summary([timings for _, timings in self._timings])
+            rates = stage_rates(self._timings)
         problems = (sum(counts[key] for key in DROPS), sum(counts[key] for key in WARNINGS))
         level, message = DiagnosticStatus.OK, f'{counts["answered"]} frames answered'
         for now, before, what in zip(problems, self._reported, ('dropped', 'warnings')):
@@ -93,8 +99,25 @@ class NodeStats:
                    for key in COUNTERS]
         values += [KeyValue(key=f'{stage}{_SUFFIX}{stat}', value=f'{ms:.3f}')
                    for stage, stats in summary.items() for stat, ms in stats.items()]
+        values += [KeyValue(key=f'{stage}_per_s', value=f'{rate:.3f}')
+                   for stage, rate in rates.items()]
         return DiagnosticStatus(level=level, name=name, message=message,
                                 hardware_id='', values=values)
+
+
+def stage_rates(frames: Sequence[tuple[float, Mapping[str, float]]]) -> dict[str, float]:
+    """
+    {stage: frames with it per second} over (time s, {stage: ms}) frames in time order.
+
+    The rate is over the frames' time span: empty with fewer than two frames.
+    """
+    if len(frames) < 2 or frames[-1][0] <= frames[0][0]:
+        return {}
+    span_s = frames[-1][0] - frames[0][0]
+    counts = Counter(stage for _, timings in frames for stage in timings)
+    # n frames span n - 1 intervals.
+    scale = (len(frames) - 1) / len(frames) / span_s
+    return {stage: count * scale for stage, count in sorted(counts.items())}
 
 
 class InputWatch:

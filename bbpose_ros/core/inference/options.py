@@ -139,6 +139,10 @@ class PipelineOptions:
     tracking_min_score: float = _setting(
         0.5, 'With tracking, a track whose refinement scores below this (0..1) is lost.',
         0.0, 1.0)
+    tracking_stream: bool = _setting(
+        False, 'With tracking, answer every frame from the tracks alone and run the detector, '
+        'Q-Net and refinement beside it in a thread of their own on the newest frame; their '
+        'poses join the tracks when they arrive (needs tracking).')
     inference_backend: str = _setting(
         'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         choices=BACKENDS)
@@ -166,6 +170,9 @@ class PipelineOptions:
         if self.tracking and not self.refine:
             raise InputError('tracking / refine: tracking follows refined poses; set refine '
                              'true or tracking false')
+        if self.tracking_stream and not self.tracking:
+            raise InputError('tracking_stream / tracking: stream mode runs beside the tracks; '
+                             'set tracking true or tracking_stream false')
 
     @property
     def uses_qnet(self) -> bool:

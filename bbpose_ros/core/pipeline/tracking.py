@@ -29,6 +29,16 @@ Policy, per frame:
 
 Both settings are the pipeline's PipelineOptions'.
 
+In stream mode (``tracking_stream``) no frame waits for the full pipeline: step 1 answers
+every frame, and where step 2 asks for detection the frame is handed to a
+``BackgroundDetection``, which runs the full pipeline in a thread of its own on the newest
+frame handed (while a frame waits there, each newer one replaces it). The poses of a
+finished job are adopted at the start of the next frame as in step 3, before step 1, whose
+refinement carries them from their frame to the current one; poses that start no track are
+reported in that frame only. A frame's timings then carry the adopted job's
+``stream_job`` (how long the full pipeline ran) and ``stream_age`` (how old its poses are
+when adopted: from their frame's handing over to the adoption), milliseconds.
+
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
 Only objects the refiner has a viewpoint model of are tracked.
@@ -45,6 +55,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.latency import StageTimer
+from bbpose_ros.core.pipeline.background_detection import BackgroundDetection
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import FrameResult, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
@@ -85,6 +96,8 @@ class PoseTracker:
         self.pipeline = pipeline
         self.tracks: dict[str, Track] = {}
         self._since_detection = 0
+        self._background = BackgroundDetection(pipeline) \
+            if pipeline.options.tracking_stream else None
 
     @property
     def options(self) -> PipelineOptions:
@@ -96,13 +109,33 @@ class PoseTracker:
         """Return the pipeline's {name: ObjectModel}: a tracker stands in for its pipeline."""
         return self.pipeline.models
 
+    @property
+    def background_running(self) -> bool:
+        """Tell whether stream mode's background thread is alive."""
+        return self._background is not None and self._background.running
+
     def reset(self) -> None:
-        """Forget all tracks (a new camera, a jump back in time)."""
+        """Forget all tracks (a new camera, a jump back in time); stop a background job."""
+        if self._background is not None:
+            self._background.stop()
         self.tracks.clear()
         self._since_detection = 0
 
+    def close(self) -> None:
+        """Reset and stop for good: later frames are answered by the tracks alone."""
+        if self._background is not None:
+            self._background.close()
+        self.reset()
+
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics) -> FrameResult:
-        """Track, detect when the policy says so, and return the frame's poses."""
+        """
+        Track, detect when the policy says so, and return the frame's poses.
+
+        In stream mode ``image_rgb`` may be read by the background job after this returns:
+        the caller must not write to it afterwards.
+        """
+        if self._background is not None:
+            return self._stream(image_rgb, camera)
         timer = StageTimer()
         tracked = bool(self.tracks)
         lost = self._follow_tracks(image_rgb, camera)
@@ -115,6 +148,28 @@ class PoseTracker:
             timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
                                     if stage != 'total')
             untracked = self._adopt(result.poses)
+            self._since_detection = 0
+        return FrameResult([track.pose for track in self.tracks.values()] + untracked,
+                           timer.total())
+
+    def _stream(self, image_rgb, camera):
+        """Stream mode: adopt the finished job's poses, track, hand the frame on if wanted."""
+        timer = StageTimer()
+        untracked = []
+        finished = self._background.take()
+        if finished is not None:
+            if finished.error is not None:
+                raise finished.error
+            untracked = self._adopt(finished.result.poses)
+            timer.timings_ms.update(stream_job=finished.run_ms,
+                                    stream_age=(timer.start_s - finished.handed_s) * 1e3)
+        tracked = bool(self.tracks)
+        lost = self._follow_tracks(image_rgb, camera)
+        timer.lap('tracking' if tracked else None)
+        self._since_detection += 1
+        if self._background.waiting or not self.tracks or lost or \
+                self._since_detection >= self.options.tracking_redetect_every:
+            self._background.hand(image_rgb, camera)
             self._since_detection = 0
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())

@@ -40,10 +40,18 @@ Threads wait for work asleep, not spinning (``OMP_WAIT_POLICY=PASSIVE`` unless t
 environment sets it, before numba starts its OpenMP threads): on a robot's two cores the
 other processes (DDS, the camera driver) then keep their core, and a spinning worker does not
 slow the refinement down when that core is busy.
+
+Two threads may refine at once (stream mode: the tracks in the foreground, the full
+pipeline beside them). numba's OpenMP and TBB threading layers take parallel kernels
+launched from several threads at once; its 'workqueue' layer (the one left where neither
+library loads) aborts the process on such a launch, so there the parallel kernels are
+launched one at a time (``parallel_launch``).
 """
 
+import contextlib
 import math
 import os
+import threading
 
 import numba
 import numpy as np
@@ -59,6 +67,28 @@ def use_threads(count: int) -> None:
     """Run this thread's kernels on ``count`` threads (0: one per core, numba's default)."""
     numba.set_num_threads(min(count, numba.config.NUMBA_NUM_THREADS) if count > 0
                           else numba.config.NUMBA_NUM_THREADS)
+
+
+_LAUNCHES = threading.Lock()
+_CONCURRENT_LAYERS = ('omp', 'tbb')
+_concurrent: bool | None = None     # known once a parallel kernel has run
+
+
+def concurrent_launches_safe() -> bool:
+    """Tell whether numba's threading layer takes parallel kernels from several threads."""
+    global _concurrent
+    if _concurrent is None:
+        try:
+            layer = numba.threading_layer()
+        except ValueError:      # no parallel kernel has run yet: the layer is not chosen
+            return False
+        _concurrent = layer in _CONCURRENT_LAYERS
+    return _concurrent
+
+
+def parallel_launch() -> contextlib.AbstractContextManager:
+    """Return what a parallel kernel's launch runs under: a shared lock where it must."""
+    return contextlib.nullcontext() if concurrent_launches_safe() else _LAUNCHES
 
 
 @numba.njit(**_NUMBA)

@@ -215,10 +215,11 @@ class RegionModality:
         local = LocalColors(
             np.zeros((count, self.lines_per_view, 2, len(_HISTOGRAM_OFFSETS)), np.uint16),
             np.zeros((count, self.lines_per_view, 2), np.int32))
-        hist_f, hist_b, totals = line_kernels.line_color_histograms(
-            self.bins, self.camera.width, self.camera.height, centres, normals, runs_f, runs_b,
-            in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS, local.samples,
-            local.counts)
+        with line_kernels.parallel_launch():
+            hist_f, hist_b, totals = line_kernels.line_color_histograms(
+                self.bins, self.camera.width, self.camera.height, centres, normals, runs_f,
+                runs_b, in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS,
+                local.samples, local.counts)
         return hist_f, hist_b, (totals >= 10).all(axis=1), local if count else None
 
     def lines(self, rotation, translation, hist_f, hist_b, scale, chosen=None, local=None):
@@ -240,16 +241,17 @@ class RegionModality:
         if chosen is not None:
             valid &= chosen
         masks = self.masks
-        mean, variance, distribution = line_kernels.contour_distributions(
-            self.bins, camera.width, camera.height, centres, normals, valid,
-            np.asarray(hist_f, dtype=np.float64), np.asarray(hist_b, dtype=np.float64), scale,
-            LINE_SEGMENTS, _H_B32, _H_DIFF32, _POSITIONS, MIN_VARIANCE, _MAX_LOG_RATIO,
-            _NO_MASKS if masks is None else masks.log_odds_grid,
-            _NO_SQUARES if masks is None else masks.squares_uv.astype(np.float64),
-            np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS),
-            _NO_SAMPLES if local is None else local.samples,
-            _NO_COUNTS if local is None else local.counts, self.local_window,
-            LOCAL_CHUNK_LINES, LOCAL_PRIOR_PIXELS)
+        with line_kernels.parallel_launch():
+            mean, variance, distribution = line_kernels.contour_distributions(
+                self.bins, camera.width, camera.height, centres, normals, valid,
+                np.asarray(hist_f, dtype=np.float64), np.asarray(hist_b, dtype=np.float64), scale,
+                LINE_SEGMENTS, _H_B32, _H_DIFF32, _POSITIONS, MIN_VARIANCE, _MAX_LOG_RATIO,
+                _NO_MASKS if masks is None else masks.log_odds_grid,
+                _NO_SQUARES if masks is None else masks.squares_uv.astype(np.float64),
+                np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS),
+                _NO_SAMPLES if local is None else local.samples,
+                _NO_COUNTS if local is None else local.counts, self.local_window,
+                LOCAL_CHUNK_LINES, LOCAL_PRIOR_PIXELS)
         return CorrespondenceLines(valid, points, centres, normals, mean, variance, distribution)
 
     def scores(self, rotation, translation):

@@ -1,0 +1,195 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Stream mode: the tracks answer every frame, the full pipeline runs beside them."""
+
+from dataclasses import replace
+import threading
+import time
+
+import numba
+import numpy as np
+import pytest
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.pipeline.tracking import PoseTracker, Track
+from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine.refiner import compile_kernels
+from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.ros.diagnostics import stage_rates
+
+pytestmark = pytest.mark.slow   # real frames refined in two threads
+NAMES = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
+WAIT_S = 60.0
+
+
+class GatedDetector:
+    """The ground-truth boxes of a frame, returned once the gate opens; counts its runs."""
+
+    def __init__(self, truths):
+        self.truths = truths
+        self.gate = threading.Event()
+        self.calls = 0
+        self.running = 0
+        self.most_running = 0
+
+    def __call__(self, image_rgb):
+        self.calls += 1
+        self.running += 1
+        self.most_running = max(self.most_running, self.running)
+        self.gate.wait(WAIT_S)
+        self.running -= 1
+        return [Detection(i.object_name, 0.9, i.box_uv) for i in self.truths]
+
+
+@pytest.fixture(scope='module')
+def scene(lmo_models, lmo_frames):
+    """(frame, image, its well visible instances, viewpoint models) of the first frame."""
+    frame = lmo_frames[0]
+    truths = [i for i in frame.instances if i.visib_fract > 0.5]
+    names = sorted({i.object_name for i in truths})
+    models = load_viewpoint_models({n: lmo_models[n] for n in names}, progress=False)
+    return frame, frame.load_image(), truths, models
+
+
+def stream_tracker(scene, lmo_models, **settings):
+    """Make a stream-mode PoseTracker over a gated ground-truth detector and rotations."""
+    frame, _, truths, models = scene
+    detector = GatedDetector(truths)
+    by_name = {i.object_name: i.rotation for i in truths}
+
+    def rotations(image_rgb, camera, detections):
+        return np.stack([by_name[d.object_name] for d in detections])
+
+    options = PipelineOptions(tracking=True, tracking_stream=True, tracking_min_score=0.3,
+                              **settings)
+    pipeline = PosePipeline({n: lmo_models[n] for n in models}, options, detector, rotations,
+                            refiner=PoseRefiner(models, options))
+    return PoseTracker(pipeline), detector
+
+
+def wait_for(condition, limit_s=WAIT_S):
+    """Wait until ``condition()`` holds."""
+    start = time.monotonic()
+    while not condition():
+        assert time.monotonic() - start < limit_s, 'never happened'
+        time.sleep(0.01)
+
+
+def run_until(tracker, image, camera, done, limit_s=WAIT_S):
+    """Answer frames until ``done(result)``; return the results, every frame's."""
+    results, start = [], time.monotonic()
+    while time.monotonic() - start < limit_s:
+        results.append(tracker.estimate(image, camera))
+        if done(results[-1]):
+            return results
+        time.sleep(0.01)
+    raise AssertionError('stream mode never got there')
+
+
+def test_stream_answers_every_frame_and_adopts_later(scene, lmo_models):
+    frame, image, truths, _ = scene
+    tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=3)
+    try:
+        # The detector is held: every frame is answered, none waits for it.
+        for _ in range(5):
+            start = time.perf_counter()
+            result = tracker.estimate(image, frame.camera)
+            assert time.perf_counter() - start < 1.0
+            assert result.poses == [] and 'detector' not in result.timings_ms
+        wait_for(lambda: detector.calls)
+        assert detector.calls == 1 and tracker.background_running
+        detector.gate.set()
+        results = run_until(tracker, image, frame.camera, lambda r: r.poses)
+        adopted = results[-1]
+        assert sorted(p.object_name for p in adopted.poses) == \
+            sorted(i.object_name for i in truths)
+        assert {'stream_job', 'stream_age', 'tracking'} <= set(adopted.timings_ms)
+        assert adopted.timings_ms['stream_age'] >= adopted.timings_ms['stream_job'] > 0.0
+        # Later frames keep them by tracking; the full pipeline runs beside, one job at a time.
+        for _ in range(8):
+            later = tracker.estimate(image, frame.camera)
+            assert sorted(p.object_name for p in later.poses) == \
+                sorted(i.object_name for i in truths)
+            assert 'detector' not in later.timings_ms
+        assert detector.most_running == 1
+    finally:
+        tracker.reset()
+    assert not tracker.background_running
+
+
+def test_stream_replaces_a_lost_track(scene, lmo_models):
+    frame, image, truths, _ = scene
+    tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=1000)
+    detector.gate.set()
+    try:
+        run_until(tracker, image, frame.camera, lambda r: r.poses)
+        calls = detector.calls
+        name = truths[0].object_name
+        # Far off the object: the next frame's tracking loses it, and hands the frame on.
+        track = tracker.tracks[name]
+        tracker.tracks[name] = Track(replace(track.pose,
+                                             translation=track.pose.translation + 0.3))
+        lost = tracker.estimate(image, frame.camera)
+        assert name not in {p.object_name for p in lost.poses}
+        results = run_until(tracker, image, frame.camera,
+                            lambda r: name in {p.object_name for p in r.poses})
+        assert detector.calls > calls and 'stream_job' in results[-1].timings_ms
+    finally:
+        tracker.reset()
+
+
+def test_reset_stops_the_background_job(scene, lmo_models):
+    frame, image, _, _ = scene
+    tracker, detector = stream_tracker(scene, lmo_models)
+    tracker.estimate(image, frame.camera)
+    assert tracker.background_running
+    threading.Timer(0.2, detector.gate.set).start()     # the job in hand ends soon
+    tracker.reset()
+    assert not tracker.background_running and tracker.tracks == {}
+    assert not [t for t in threading.enumerate() if t.name == 'bbpose_detection']
+    # Its poses are dropped; the next frame starts a new job.
+    assert tracker.estimate(image, frame.camera).poses == []
+    assert tracker.background_running
+    tracker.close()
+    assert not tracker.background_running
+    tracker.estimate(image, frame.camera)       # closed: the tracks alone answer
+    assert not tracker.background_running
+
+
+def test_stream_needs_tracking():
+    with pytest.raises(InputError, match='tracking_stream / tracking'):
+        PipelineOptions(tracking_stream=True)
+    assert not PipelineOptions().tracking_stream
+
+
+def test_parallel_kernels_launch_safely():
+    compile_kernels()       # a parallel kernel has run: numba has chosen its layer
+    layer = numba.threading_layer()
+    assert line_kernels.concurrent_launches_safe() == (layer != 'workqueue')
+    lock = line_kernels.parallel_launch()
+    assert (lock is line_kernels._LAUNCHES) == (layer == 'workqueue')
+
+
+def test_stage_rates():
+    frames = [(t * 0.1, {'total': 1.0, **({'stream_job': 5.0} if t % 4 == 0 else {})})
+              for t in range(41)]
+    rates = stage_rates(frames)
+    assert rates['total'] == pytest.approx(10.0, rel=0.03)
+    assert rates['stream_job'] == pytest.approx(2.5, rel=0.1)
+    assert stage_rates(frames[:1]) == {}
