@@ -47,6 +47,21 @@ class NodePipeline:
     detections: DetectionsBuilder
 
 
+def stop_background(built: NodePipeline | None, for_good: bool = False) -> None:
+    """
+    Stop the background job of a NodePipeline's tracker (stream mode), forgetting its tracks.
+
+    Anything else (no tracker, None) is left alone. ``for_good`` (the pipeline is dropped):
+    frames it is still given are answered by the tracks alone.
+    """
+    tracker = getattr(built, 'pipeline', None)
+    if isinstance(tracker, PoseTracker):
+        if for_good:
+            tracker.close()
+        else:
+            tracker.reset()
+
+
 def build_node_pipeline(config: NodeConfig,
                         log: Callable[[str], None] | None = None) -> NodePipeline:
     """

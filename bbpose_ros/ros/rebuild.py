@@ -28,7 +28,7 @@ import threading
 from typing import Any
 
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.ros.node_pipeline import NodePipeline
+from bbpose_ros.ros.node_pipeline import NodePipeline, stop_background
 from bbpose_ros.ros.params import NodeConfig
 
 
@@ -130,8 +130,11 @@ class PipelineRebuilder:
                 continue
             with self._lock:
                 if generation != self._generation:    # cleaned up or reconfigured meanwhile
+                    stop_background(pipeline, for_good=True)
                     continue
-                self._config, self._pipeline = config, pipeline
+                self._config, self._pipeline, old = config, pipeline, self._pipeline
+            if old is not None:   # a frame in hand on it ends without a background job
+                stop_background(old, for_good=True)
             self._log(f'pipeline rebuilt for {", ".join(changes)}')
 
     def _undo(self, changes: dict[str, Any], reason: str) -> None:

@@ -19,7 +19,8 @@ The node's lifecycle transitions: what each does to the node's parts, and the st
 ``configure`` checks the parameters, builds the pipeline and creates the (lifecycle)
 publishers, and a failure is a failed transition, its reason logged and kept for
 /diagnostics; ``activate`` (once rclpy has enabled the publishers) starts the worker and
-the subscriptions; ``deactivate`` undoes that; ``release`` (cleanup, shutdown, error) also
+the subscriptions; ``deactivate`` undoes that (and stops stream mode's background job);
+``release`` (cleanup, shutdown, error) also
 frees the pipeline and the publishers.
 
 The pinned rclpy (7.1) raises RCLError out of the ``change_state`` service callback when a
@@ -39,7 +40,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.ros.intake import FrameIntake
-from bbpose_ros.ros.node_pipeline import NodePipeline
+from bbpose_ros.ros.node_pipeline import NodePipeline, stop_background
 from bbpose_ros.ros.params import NodeConfig, parameter_values, read_config
 from bbpose_ros.ros.publishers import FramePublishers
 from bbpose_ros.ros.rebuild import PipelineRebuilder
@@ -120,6 +121,7 @@ class NodeTransitions:
     def release(self) -> None:
         """Stop serving, forget the pipeline (a rebuild under way is dropped), free topics."""
         self._stop_serving()
+        stop_background(self._rebuilder.pipeline, for_good=True)
         self._rebuilder.release()
         self._publishers.destroy()
 
@@ -143,6 +145,7 @@ class NodeTransitions:
         self._serving = False
         self._intake.unsubscribe()
         self._worker.stop()
+        stop_background(self._rebuilder.pipeline)     # stream mode's background job
         if self._node.context.ok():   # the last boxes go from RViz: nothing answers them now
             self._publishers.clear_markers()
 
