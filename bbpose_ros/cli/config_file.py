@@ -66,7 +66,9 @@ HEADER = """\
 # its reply gives the reason.
 #
 # Topics (relative names; remap them with --ros-args -r image:=/my/image ...):
-#   in:  image (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8 or 8-bit Bayer)
+#   in:  image (sensor_msgs/Image: rgb8, bgr8, mono8, rgba8, bgra8 or 8-bit Bayer), or
+#        with image_transport compressed image/compressed (sensor_msgs/CompressedImage:
+#        jpeg or png; remap the base, image:=/my/image, as image_transport does)
 #        camera_info (sensor_msgs/CameraInfo)
 #   out: ~/<object>/pose (geometry_msgs/PoseStamped, metres, quaternion x y z w)
 #        ~/detections (vision_msgs/Detection3DArray, one Detection3D per pose)

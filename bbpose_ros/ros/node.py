@@ -25,8 +25,10 @@ itself at start and exits with code 1 when it cannot. ``/diagnostics`` is publis
 every state.
 
 Subscriptions: ``image`` (sensor_msgs/Image: rgb8, bgr8, rgba8, bgra8, mono8 and the four
-8-bit Bayer patterns) and ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp
-within ``sync_slop``; a few images wait for a late CameraInfo (``pairing.StampPairer``).
+8-bit Bayer patterns; with ``image_transport: compressed``, image_transport's
+``image/compressed`` instead: sensor_msgs/CompressedImage, JPEG or PNG, decoded by the
+worker) and ``camera_info`` (sensor_msgs/CameraInfo), paired by header stamp within
+``sync_slop``; a few images wait for a late CameraInfo (``pairing.StampPairer``).
 Publications, stamped with the image's header (stamp and frame_id):
 
 * ``~/<object>/pose`` (geometry_msgs/PoseStamped, metres, ROS quaternion order), one per
@@ -109,7 +111,8 @@ class BBPoseNode(LifecycleNode):
             reason=failure_reason)
         self._outputs = FramePublishers(self)
         self._worker = FrameWorker(lambda: self._rebuilder.pipeline, self._outputs,
-                                   self.stats, self._problems, self.get_logger(), self.context)
+                                   self.stats, self._problems, self.get_logger(), self.context,
+                                   decode=lambda frame, info: self._intake.decode(frame, info))
         self._intake = FrameIntake(self, self.stats, self._problems, self._worker.offer)
         self._transitions = NodeTransitions(self, self._rebuilder, self._outputs,
                                             self._intake, self._worker, self._build)

@@ -56,6 +56,9 @@ if TYPE_CHECKING:
 NODE_NAME = 'bbpose_node'
 RELIABILITY = {'reliable': QoSReliabilityPolicy.RELIABLE,
                'best_effort': QoSReliabilityPolicy.BEST_EFFORT}
+# image_transport's names of how images arrive: raw sensor_msgs/Image on ``image``, or
+# sensor_msgs/CompressedImage (JPEG, PNG) on ``<image>/compressed``.
+TRANSPORTS = ('raw', 'compressed')
 
 # The settings the configure transition reads (what runs the networks); the others shape
 # the pipeline and may be set while the node runs.
@@ -98,6 +101,11 @@ PARAMETERS = {
         'configure',
         check=check_weights_file),
     **{name: setting_spec(setting) for name, setting in SETTINGS.items()},
+    'image_transport': ParameterSpec(
+        'raw', 'How images arrive, as image_transport names it: raw (sensor_msgs/Image on '
+        'image) or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on the resolved '
+        'image topic + /compressed, e.g. /camera/image_raw/compressed; decoded in the '
+        'worker thread, only the frames it takes).', 'configure', check=one_of(TRANSPORTS)),
     'qos_reliability': ParameterSpec(
         'reliable', 'Reliability of the image and camera_info subscriptions: reliable or '
         'best_effort.', 'configure', check=one_of(RELIABILITY)),
@@ -155,6 +163,11 @@ class NodeConfig:
     def objects(self) -> tuple[str, ...]:
         """Return the names of the objects to report."""
         return tuple(self.values['objects'])
+
+    @property
+    def image_transport(self) -> str:
+        """Return how images arrive: 'raw' or 'compressed' (TRANSPORTS)."""
+        return self.values['image_transport']
 
     def updated(self, changes: dict[str, Any], options: PipelineOptions) -> NodeConfig:
         """

@@ -105,10 +105,10 @@ class NodeTransitions:
         """Start the worker and the subscriptions; the publishers are enabled already."""
         config = self._rebuilder.config
         self._worker.start(self._intake.stream)
-        self._intake.subscribe(config.qos)
+        self._intake.subscribe(config.qos, config.image_transport)
         self._serving = True
         self._node.get_logger().info(
-            f'serving {", ".join(config.objects)} on {self._intake.topic("image")} + '
+            f'serving {", ".join(config.objects)} on {self._intake.image_topic} + '
             f'{self._intake.topic("camera_info")} ({config.qos.reliability.name.lower()}, '
             f'depth {config.qos.depth})')
         return SUCCESS

@@ -19,7 +19,9 @@ Pairs wait in a one-item slot (``pairing.LatestSlot``): one that arrives while t
 is busy replaces the one waiting (``superseded``) instead of queueing. The pipeline is
 taken once per frame, so a run-time rebuild swaps it between two frames; a frame of a new
 stream (the image stamps went back) resets a tracker first. A frame whose estimate fails is
-counted and logged (``failed``), and the worker goes on with the next.
+counted and logged (``failed``), and the worker goes on with the next. A compressed frame
+(``image_transport: compressed``) is decoded here, off the executor, and only when taken
+(``decode``: ``FrameIntake.decode``); its decode time is the ``image_decode`` stage.
 """
 
 from collections.abc import Callable
@@ -28,6 +30,7 @@ import time
 
 from rclpy.context import Context
 from rclpy.impl.rcutils_logger import RcutilsLogger
+from sensor_msgs.msg import CameraInfo
 
 from bbpose_ros.core.geometry.camera_info import CameraModel, Rectifier
 from bbpose_ros.core.pipeline.tracking import PoseTracker
@@ -53,18 +56,23 @@ class FrameWorker:
         problems: counts and logs a failed estimate.
         logger: the node's logger.
         context: the node's context; once it is shut down a failure is not reported.
+        decode: decodes a compressed Frame and makes its CameraModel from its CameraInfo;
+            None when the frame is dropped (counted and logged by it).
 
     """
 
     def __init__(self, pipeline: Callable[[], NodePipeline | None],
                  publishers: FramePublishers, stats: NodeStats, problems: ProblemLog,
-                 logger: RcutilsLogger, context: Context) -> None:
+                 logger: RcutilsLogger, context: Context,
+                 decode: Callable[[Frame, CameraInfo], tuple[Frame, CameraModel] | None]
+                 ) -> None:
         self._pipeline = pipeline
         self._publishers = publishers
         self._stats = stats
         self._problems = problems
         self._logger = logger
         self._context = context
+        self._decode = decode
         self._slot = LatestSlot()
         self._thread: threading.Thread | None = None
         self._rectifier = Rectifier()             # its maps are kept from frame to frame
@@ -76,9 +84,13 @@ class FrameWorker:
                                         name='bbpose_worker', daemon=True)
         self._thread.start()
 
-    def offer(self, frame: Frame, camera_model: CameraModel) -> None:
-        """Hand a pair to the thread; one still waiting is dropped (``superseded``)."""
-        if self._slot.put((frame, camera_model)) is not None:
+    def offer(self, frame: Frame, camera: CameraModel | CameraInfo) -> None:
+        """
+        Hand a pair to the thread; one still waiting is dropped (``superseded``).
+
+        ``camera`` is the frame's CameraModel, or for a compressed frame its CameraInfo.
+        """
+        if self._slot.put((frame, camera)) is not None:
             self._stats.count('superseded')
 
     def stop(self) -> None:
@@ -91,16 +103,23 @@ class FrameWorker:
     def _run(self, slot: LatestSlot, stream: int) -> None:
         """Estimate and publish the newest pair until the slot closes."""
         while (item := slot.take()) is not None:
-            frame, camera_model = item
+            frame, camera = item
             pipeline = self._pipeline()     # a run-time rebuild may swap it
-            if frame.stream != stream and isinstance(pipeline.pipeline, PoseTracker):
-                pipeline.pipeline.reset()
-                self._logger.info('tracks reset: the image stamps went back')
-            stream = frame.stream
             try:
-                image_rgb = self._rectifier(frame.image_rgb, camera_model)
-                result = pipeline.pipeline.estimate(image_rgb, camera_model.intrinsics)
-                self._publishers.publish(frame.header, image_rgb, camera_model.intrinsics,
+                decode_ms = {}
+                if frame.image_rgb is None:            # compressed: decoded now it is taken
+                    start = time.perf_counter()
+                    if (decoded := self._decode(frame, camera)) is None:
+                        continue                       # dropped: counted and logged
+                    frame, camera = decoded
+                    decode_ms['image_decode'] = (time.perf_counter() - start) * 1e3
+                if frame.stream != stream and isinstance(pipeline.pipeline, PoseTracker):
+                    pipeline.pipeline.reset()
+                    self._logger.info('tracks reset: the image stamps went back')
+                stream = frame.stream
+                image_rgb = self._rectifier(frame.image_rgb, camera)
+                result = pipeline.pipeline.estimate(image_rgb, camera.intrinsics)
+                self._publishers.publish(frame.header, image_rgb, camera.intrinsics,
                                          result.poses, pipeline)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 if not self._context.ok():
@@ -109,6 +128,7 @@ class FrameWorker:
                                     f'estimation failed (stamp {stamp_text(frame.header)}): '
                                     f'{type(err).__name__}: {err}')
                 continue
-            self._stats.add_timings(
-                dict(result.timings_ms, node=(time.perf_counter() - frame.received_s) * 1e3))
+            self._stats.add_timings(dict(
+                result.timings_ms, **decode_ms,
+                node=(time.perf_counter() - frame.received_s) * 1e3))
             self._stats.count('answered')
