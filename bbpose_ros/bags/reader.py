@@ -12,7 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Read bags written by ``bbpose make-bag`` (or any bag with the same topics) frame by frame."""
+"""
+Read bags written by ``bbpose make-bag`` (or any bag with the same topics) frame by frame.
+
+Images are raw (sensor_msgs/Image on the image topic) or image_transport's compressed
+(sensor_msgs/CompressedImage, JPEG or PNG, on the image topic + /compressed):
+``bag_image_source`` tells which a bag holds, ``read_bag_frames`` decodes either.
+"""
 
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -23,6 +29,7 @@ from rosbags.rosbag2 import Reader
 
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.typestore import TYPESTORE
+from bbpose_ros.core.data.compressed_image import decode_compressed
 from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
@@ -52,19 +59,37 @@ class BagFrame:
     ground_truth: dict = field(default_factory=dict)
 
 
+def bag_image_source(path: Path | str, image_topic: str = topics.IMAGE_TOPIC
+                     ) -> tuple[str, str]:
+    """
+    Return (topic, transport) of the images of a bag: transport 'raw' or 'compressed'.
+
+    The topic is ``image_topic`` when the bag holds it (an Image, or a CompressedImage
+    when that topic is a compressed one), else image_transport's ``image_topic``/compressed
+    when it holds that; raw is preferred (it is lossless) when both are there. A bag with
+    neither gives (``image_topic``, 'raw'): no frames.
+    """
+    reader = _open(Path(path))
+    try:
+        return _image_source({c.topic: c.msgtype for c in reader.connections}, image_topic)
+    finally:
+        reader.close()
+
+
 def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
                     camera_info_topic: str = topics.CAMERA_INFO_TOPIC) -> list[BagFrame]:
-    """Read every image of a bag, paired by header stamp with CameraInfo and ground truth."""
+    """
+    Read every image of a bag, paired by header stamp with CameraInfo and ground truth.
+
+    Raw or compressed images (``bag_image_source`` chooses the topic); InputError names a
+    frame whose image cannot be decoded.
+    """
     path = Path(path)
-    if not path.exists():
-        raise InputError(f'bag not found: {path}')
-    try:
-        reader = Reader(path)
-        reader.open()
-    except Exception as err:  # rosbags raises its own error types for broken bags
-        raise InputError(f'cannot open bag {path}: {err}') from err
+    reader = _open(path)
     images, infos, poses = {}, {}, defaultdict(lambda: defaultdict(list))
     try:
+        image_topic, _ = _image_source({c.topic: c.msgtype for c in reader.connections},
+                                       image_topic)
         for connection, _, raw in reader.messages():
             if connection.topic not in (image_topic, camera_info_topic) and \
                     topics.object_of_ground_truth_topic(connection.topic) is None:
@@ -81,14 +106,48 @@ def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
     finally:
         reader.close()
     rectifier = Rectifier()
-    return [_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}), rectifier)
-            for stamp in sorted(images)]
+    frames = []
+    for stamp in sorted(images):
+        try:
+            frames.append(_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}),
+                                 rectifier))
+        except InputError as err:
+            raise InputError(f'bag {path}, {image_topic} at stamp {stamp} ns: {err}') from err
+    return frames
+
+
+def _open(path):
+    """Open a bag's Reader; InputError when it is missing or broken."""
+    if not path.exists():
+        raise InputError(f'bag not found: {path}')
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as err:  # rosbags raises its own error types for broken bags
+        raise InputError(f'cannot open bag {path}: {err}') from err
+    return reader
+
+
+def _image_source(connections, image_topic):
+    """(topic, transport) of the images among {topic: type} (see ``bag_image_source``)."""
+    if connections.get(image_topic) == topics.IMAGE_TYPE:
+        return image_topic, 'raw'
+    if connections.get(image_topic) == topics.COMPRESSED_IMAGE_TYPE:
+        return image_topic, 'compressed'
+    compressed = topics.compressed_topic(image_topic)
+    if connections.get(compressed) == topics.COMPRESSED_IMAGE_TYPE:
+        return compressed, 'compressed'
+    return image_topic, 'raw'
 
 
 def _frame(stamp, image, info, poses, rectifier):
-    rgb = decode_image(image.height, image.width, image.encoding, image.step, image.data)
+    if hasattr(image, 'format'):                    # sensor_msgs/CompressedImage
+        rgb = decode_compressed(image.format, image.data)
+    else:
+        rgb = decode_image(image.height, image.width, image.encoding, image.step, image.data)
+    height, width = rgb.shape[:2]
     if info is None:
         return BagFrame(stamp, image.header.frame_id, rgb, None, dict(poses))
-    model = camera_model(info, image.width, image.height)
+    model = camera_model(info, width, height)
     return BagFrame(stamp, image.header.frame_id, rectifier(rgb, model), model.intrinsics,
                     dict(poses))

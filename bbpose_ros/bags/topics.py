@@ -30,8 +30,16 @@ DEFAULT_FRAME_ID = 'camera_color_optical_frame'
 GROUND_TRUTH_PREFIX = '/ground_truth/'
 
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
+COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
+# image_transport's compressed transport: its topic is the image topic + this suffix.
+COMPRESSED_SUFFIX = '/compressed'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
+
+
+def compressed_topic(image_topic: str) -> str:
+    """Topic of image_transport's compressed images of ``image_topic``, e.g. .../compressed."""
+    return image_topic + COMPRESSED_SUFFIX
 
 
 def ground_truth_topic(object_name: str) -> str:

@@ -18,7 +18,7 @@ Write rosbag2 files: raw CDR messages (``write_bag``), or BOP frames (``write_bo
 Every bag is written through ``write_bag``, with the one typestore (``bags.typestore``).
 """
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 import shutil
 from typing import Any
@@ -30,6 +30,7 @@ from tqdm import tqdm
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.typestore import add_missing_types, TYPESTORE
 from bbpose_ros.core.data.bop import BopFrame
+from bbpose_ros.core.data.compressed_image import DEFAULT_JPEG_QUALITY, encode_compressed
 from bbpose_ros.core.data.image_encoding import encode_rgb8
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
@@ -58,6 +59,19 @@ def image_message(stamp_ns: int, frame_id: str, image_rgb: np.ndarray) -> Any:
     return TYPESTORE.types[topics.IMAGE_TYPE](
         header=topics.header(stamp_ns, frame_id), height=height, width=width,
         encoding=encoding, is_bigendian=0, step=step, data=data)
+
+
+def compressed_image_message(stamp_ns: int, frame_id: str, image_rgb: np.ndarray,
+                             jpeg_quality: int = DEFAULT_JPEG_QUALITY) -> Any:
+    """
+    sensor_msgs/CompressedImage of an (H, W, 3) uint8 RGB array, as image_transport sends it.
+
+    JPEG of quality ``jpeg_quality`` (1 .. 100), format 'rgb8; jpeg compressed bgr8'.
+    """
+    image_format, data = encode_compressed(image_rgb, 'jpeg', jpeg_quality)
+    return TYPESTORE.types[topics.COMPRESSED_IMAGE_TYPE](
+        header=topics.header(stamp_ns, frame_id), format=image_format,
+        data=np.frombuffer(data, dtype=np.uint8))
 
 
 def write_bag(path: Path | str, messages: Iterable[BagMessage], storage: str = 'mcap',
@@ -91,23 +105,35 @@ def write_bag(path: Path | str, messages: Iterable[BagMessage], storage: str = '
 
 def write_bop_bag(frames: Sequence[BopFrame], out_path: Path | str, rate_hz: float = 10.0,
                   start_stamp_ns: int = 1_000_000_000, frame_id: str = topics.DEFAULT_FRAME_ID,
-                  storage: str = 'mcap', min_visib: float = 0.1, progress: bool = True) -> int:
+                  storage: str = 'mcap', min_visib: float = 0.1, progress: bool = True,
+                  compressed: bool = False, jpeg_quality: int = DEFAULT_JPEG_QUALITY) -> int:
     """
     Write BOP frames as a rosbag2 at ``out_path``, atomically (``write_bag``).
 
-    Frame i is stamped start_stamp_ns + i / rate_hz. Per frame: an rgb8 Image, a CameraInfo
-    with the same header, and a PoseStamped (metres) on /ground_truth/<object>/pose for each
-    instance whose visible fraction is at least ``min_visib``. Returns the number of frames
-    written.
+    Frame i is stamped start_stamp_ns + i / rate_hz. Per frame: an rgb8 Image on
+    /camera/image_raw (with ``compressed``, instead a JPEG CompressedImage of quality
+    ``jpeg_quality`` on /camera/image_raw/compressed, as image_transport's compressed
+    transport records it), a CameraInfo with the same header, and a PoseStamped (metres) on
+    /ground_truth/<object>/pose for each instance whose visible fraction is at least
+    ``min_visib``. Returns the number of frames written.
     """
     out_path = Path(out_path)
     _check_output(out_path, storage, replace=False)
     if rate_hz <= 0:
         raise InputError(f'rate must be positive, got {rate_hz}')
+    if not 1 <= jpeg_quality <= 100:
+        raise InputError(f'jpeg quality must be within 1 .. 100, got {jpeg_quality}')
     if not frames:
         raise InputError('no frames to write')
+    if compressed:
+        image = (topics.compressed_topic(topics.IMAGE_TOPIC), topics.COMPRESSED_IMAGE_TYPE,
+                 lambda stamp, rgb: compressed_image_message(stamp, frame_id, rgb,
+                                                             jpeg_quality))
+    else:
+        image = (topics.IMAGE_TOPIC, topics.IMAGE_TYPE,
+                 lambda stamp, rgb: image_message(stamp, frame_id, rgb))
     write_bag(out_path, _bop_messages(frames, rate_hz, start_stamp_ns, frame_id, min_visib,
-                                      progress), storage)
+                                      progress, image), storage)
     return len(frames)
 
 
@@ -121,12 +147,15 @@ def _check_output(path: Path, storage: str, replace: bool) -> None:
 
 
 def _bop_messages(frames: Sequence[BopFrame], rate_hz: float, start_stamp_ns: int,
-                  frame_id: str, min_visib: float, progress: bool) -> Iterator[BagMessage]:
+                  frame_id: str, min_visib: float, progress: bool,
+                  image: tuple[str, str, Callable[[int, np.ndarray], Any]]
+                  ) -> Iterator[BagMessage]:
+    """Yield the messages of ``write_bop_bag``; ``image``: (topic, type, message maker)."""
+    image_topic, image_type, image_of = image
     for index, frame in enumerate(tqdm(frames, desc='writing bag', unit='frame',
                                        disable=not progress)):
         stamp = start_stamp_ns + int(round(index * 1e9 / rate_hz))
-        yield _serialized(topics.IMAGE_TOPIC, topics.IMAGE_TYPE, stamp,
-                          image_message(stamp, frame_id, frame.load_image()))
+        yield _serialized(image_topic, image_type, stamp, image_of(stamp, frame.load_image()))
         yield _serialized(topics.CAMERA_INFO_TOPIC, topics.CAMERA_INFO_TYPE, stamp,
                           camera_info_message(stamp, frame_id, frame.camera))
         for instance in frame.instances:

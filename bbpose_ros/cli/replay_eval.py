@@ -33,9 +33,11 @@ import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from tqdm import tqdm
+import yaml
 
+from bbpose_ros.bags import topics
 from bbpose_ros.bags.player import BagPlayer
-from bbpose_ros.bags.reader import BagFrame, read_bag_frames
+from bbpose_ros.bags.reader import bag_image_source, BagFrame, read_bag_frames
 from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_lockstep, use_large_image_profile
@@ -120,9 +122,29 @@ def video_frames(frames: Sequence[BagFrame], recording: Recording,
              f'ground truth: {len(truths)} objects')])
 
 
+def with_transport(overrides: Sequence[str], transport: str) -> list[str]:
+    """
+    Return parameter ``overrides`` and ``image_transport:=<transport>``: the bag's images.
+
+    A bag of compressed images (``make-bag --compressed``) is played to a node subscribed
+    to them; an override that sets another transport is an InputError.
+    """
+    for override in overrides:
+        name, _, text = override.partition(':=')
+        if name.strip() == 'image_transport' and yaml.safe_load(text) != transport:
+            raise InputError(f'--param {override}: the bag holds {transport} images '
+                             f'(image_transport:={transport})')
+    return list(overrides) + [f'image_transport:={transport}']
+
+
 def record(args: argparse.Namespace, objects: list[str], frame_count: int,
-           overrides: list[str]) -> Recording:
-    """Run the node with parameter ``overrides``, replay the bag into it; return the Recording."""
+           overrides: list[str], image_topic: str = topics.IMAGE_TOPIC) -> Recording:
+    """
+    Run the node with parameter ``overrides``, replay the bag into it; return the Recording.
+
+    ``image_topic``: the bag's image topic (a compressed one needs the node's
+    ``image_transport`` compressed among the overrides: ``with_transport``).
+    """
     use_large_image_profile()
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bbpose_replay_eval')
@@ -131,7 +153,7 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
         player = BagPlayer(node, args.bag)
         recorder = Recorder(node, objects)
         with tqdm(total=frame_count, desc='replaying', unit='frame') as bar:
-            recording = replay_lockstep(player, recorder, process,
+            recording = replay_lockstep(player, recorder, process, image_topic=image_topic,
                                         answer_timeout_s=args.answer_timeout,
                                         progress=lambda sent: bar.update(sent - bar.n))
     finally:
@@ -164,7 +186,9 @@ def run(args: argparse.Namespace) -> int:
     frames = read_bag_frames(args.bag)
     if not frames or any(frame.camera is None for frame in frames):
         raise InputError(f'bag {args.bag} has no frames or a frame without camera_info')
-    recording = record(args, list(models), len(frames), args.param)
+    image_topic, transport = bag_image_source(args.bag)
+    overrides = with_transport(args.param, transport)
+    recording = record(args, list(models), len(frames), overrides, image_topic)
     bag_path = results_bag_path(args.json)
     write_bag(bag_path, recording.messages, replace=True)
     scores = score_recording(frames, recording.poses, models)
@@ -173,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.compare_tracking:
         tracking = bool(values['tracking'])
         flipped = record(args, list(models), len(frames),
-                         list(args.param) + [f'tracking:={str(not tracking).lower()}'])
+                         overrides + [f'tracking:={str(not tracking).lower()}'], image_topic)
         other = recording_report(flipped, score_recording(frames, flipped.poses, models),
                                  score_recording(frames, flipped.detections, models))
         report['tracking'] = {
@@ -181,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
                                               ('mean', 'timing_ms', 'frames')}
             for run_tracking, run in ((tracking, report), (not tracking, other))}
     report['config'] = {'bag': str(args.bag), 'params': str(args.params),
-                        'param_overrides': list(args.param), 'results_bag': str(bag_path)}
+                        'param_overrides': list(args.param), 'image_transport': transport,
+                        'results_bag': str(bag_path)}
     print(format_report(report))
     for name, count in unscored_poses(recording, report['objects']).items():
         print(f'{name}: no ground truth in the bag, {count} poses published (not scored)')

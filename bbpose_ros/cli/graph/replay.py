@@ -36,7 +36,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
 from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
@@ -194,7 +193,8 @@ def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
 
     Waits up to ``start_timeout_s`` for the node to connect and ``answer_timeout_s`` for
     each answer (a frame left unanswered is counted, not retried); ``progress`` is called
-    with the number of images sent. Returns the Recording.
+    with the number of images sent. ``image_topic`` holds the frames (sensor_msgs/Image, or
+    CompressedImage for a node with ``image_transport`` compressed). Returns the Recording.
     """
     recording = recorder.recording
     inputs = [publisher for topic, publisher in player.publishers.items()
@@ -205,7 +205,7 @@ def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
     for topic, _, raw in player.messages():
         if topic == image_topic:
             _wait_answer(recorder, previous, answer_timeout_s, process)
-            previous = stamp_to_ns(deserialize_message(raw, Image).header.stamp)
+            previous = stamp_to_ns(deserialize_message(raw, player.types[topic]).header.stamp)
             recording.published_s[previous] = time.perf_counter()
             if progress is not None:
                 progress(len(recording.published_s))
