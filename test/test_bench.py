@@ -54,6 +54,9 @@ def test_stage_bench_writes_every_key(lmo_root, tmp_path):
         assert all(set(stats) == STATS for stats in summary['stages'].values())
         assert set(summary['total']) == STATS and summary['fps'] > 0
     assert {'qnet', 'bbox_equation_per_object'} <= set(report['all_objects']['stages'])
+    # The decode of a JPEG of the frame (image_transport compressed), apart from the total.
+    assert set(report['stages']['image_decode']) == STATS and 'image_decode' in result.stdout
+    assert report['image_decode'] == {'codec': 'jpeg', 'jpeg_quality': 95}
     assert report['all_objects']['objects_per_frame'] >= 6        # LM-O: 6 to 8 per frame
     assert report['inference_threads'] == 1 and report['frames'] == 2
     assert report['inference_backend'] == 'onnxruntime'

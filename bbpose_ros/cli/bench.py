@@ -38,6 +38,8 @@ from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
+from bbpose_ros.core.data.compressed_image import decode_compressed, DEFAULT_JPEG_QUALITY
+from bbpose_ros.core.data.compressed_image import encode_compressed
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
@@ -57,7 +59,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description='Without --graph: run the pipeline on BOP frames after a warm-up and '
                     'report per stage (image conversion, detector, crop + Q-Net, Bounding Box '
                     'Equation, refinement, message building) and in total the median, p95 and '
-                    'max in ms, fps, peak RSS, the inference threads and the networks run; '
+                    'max in ms, fps, peak RSS, the inference threads and the networks run, '
+                    'and apart from the total image_decode (a JPEG of the frame, as '
+                    'image_transport compressed sends it, decoded as the node does); '
                     "once with the detector's detections and "
                     'once ("all_objects") with the ground-truth box of every object of the '
                     'frame. With --graph: start '
@@ -111,13 +115,17 @@ def bench_frames(frames: Sequence[BopFrame], values: dict[str, Any],
         frames, pipeline, lambda image: conversions.rgb_to_image(header, image),
         conversions.image_to_rgb,
         lambda poses: conversions.frame_messages(header, poses, built.markers),
-        warmup=warmup)
+        warmup=warmup,
+        to_compressed=lambda image: encode_compressed(image, 'jpeg', DEFAULT_JPEG_QUALITY),
+        from_compressed=lambda compressed: decode_compressed(
+            *compressed, values['max_image_pixels']))
     options = config.options
     report.update(inference_backend=options.inference_backend,
                   detector_network=pipeline.detector.precision,
                   qnet_network=getattr(pipeline.rotation_estimator, 'precision', None),
                   inference_threads=options.inference_threads or os.cpu_count(),
-                  refine=options.refine, refine_hypotheses=options.refine_hypotheses)
+                  refine=options.refine, refine_hypotheses=options.refine_hypotheses,
+                  image_decode={'codec': 'jpeg', 'jpeg_quality': DEFAULT_JPEG_QUALITY})
     return report
 
 

@@ -18,6 +18,11 @@ Speed of the pose pipeline stage by stage on real frames, and process readings (
 ``benchmark_frames`` times each frame as the node handles it, in milliseconds:
 
 * ``image_conversion``: the message buffer -> (H, W, 3) RGB array;
+* ``image_decode``: given ``to_compressed`` and ``from_compressed``, the frame as a
+  compressed camera sends it (image_transport's compressed: a JPEG) -> (H, W, 3) RGB
+  array, what the node's worker pays per frame with ``image_transport: compressed``; timed
+  in the detector mode apart from the frame (not in its total: the default transport, raw,
+  does not decode);
 * ``detector``: the 2D detector on the whole frame;
 * ``correspondences``: the dense net on all objects' crops (one batch), when the pipeline
   runs it (``PipelineOptions.runs_dense``);
@@ -63,9 +68,10 @@ if TYPE_CHECKING:
     from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
     from bbpose_ros.core.pipeline.poses import PoseEstimate
 
-STAGES = ('image_conversion', 'detector', 'correspondences', 'qnet', 'hypothesis_selection',
-          'qnet_and_selection', 'bbox_equation', 'bbox_equation_per_object', 'refinement',
-          'refinement_per_object', 'tracking', 'tracking_per_object', 'messages')
+STAGES = ('image_conversion', 'image_decode', 'detector', 'correspondences', 'qnet',
+          'hypothesis_selection', 'qnet_and_selection', 'bbox_equation',
+          'bbox_equation_per_object', 'refinement', 'refinement_per_object', 'tracking',
+          'tracking_per_object', 'messages')
 MODES = ('detector', 'all_objects')
 
 # The speed budgets (ms, on 2 CPU cores): (mode, stage, statistic, limit). They leave the
@@ -146,7 +152,10 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
                      to_buffer: Callable[[np.ndarray], Any],
                      from_buffer: Callable[[Any], np.ndarray],
                      build_messages: Callable[[list[PoseEstimate]], Any],
-                     warmup: int = 10, tracking_iterations: int = 3) -> dict[str, Any]:
+                     warmup: int = 10, tracking_iterations: int = 3,
+                     to_compressed: Callable[[np.ndarray], Any] | None = None,
+                     from_compressed: Callable[[Any], np.ndarray] | None = None
+                     ) -> dict[str, Any]:
     """
     Time the pipeline on each frame in both MODES and return the report.
 
@@ -158,6 +167,8 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
         build_messages: list of PoseEstimate -> the frame's output messages.
         warmup: untimed frames first (the first frames again), in both modes.
         tracking_iterations: correspondence iterations of a tracking refinement.
+        to_compressed: (H, W, 3) uint8 RGB -> the frame compressed (untimed); with
+            ``from_compressed`` (compressed -> RGB, timed) the stage ``image_decode``.
 
     Returns:
         {'stages': {stage: latency_stats}, 'total', 'fps', 'objects_per_frame'} of the
@@ -172,7 +183,8 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
     timings = {mode: [] for mode in MODES + (('tracking',) if refining else ())}
     for index in range(-warmup, len(frames)):
         frame = frames[index % len(frames)]
-        buffer = to_buffer(frame.load_image())
+        image = frame.load_image()
+        buffer = to_buffer(image)
         truth = ground_truth_detections(
             [i for i in frame.instances if np.all(np.isfinite(i.box_uv))])
         for mode, oracle in zip(MODES, (None, truth)):
@@ -180,6 +192,10 @@ def benchmark_frames(frames: Sequence[BopFrame], pipeline: PosePipeline,
                                        build_messages, oracle)
             if index >= 0:
                 timings[mode].append(times)
+        if to_compressed is not None and from_compressed is not None:
+            decode_ms = _time_decode(from_compressed, to_compressed(image))
+            if index >= 0:
+                timings['detector'][-1]['image_decode'] = decode_ms
         if refining and index >= 0:
             timings['tracking'].append(_time_tracking(pipeline, frame.camera, buffer,
                                                       from_buffer, build_messages, poses,
@@ -349,6 +365,13 @@ def _time_frame(pipeline, camera, buffer, from_buffer, build_messages, oracle):
             times['refinement'] = result.timings_ms['refinement']
             times['refinement_per_object'] = times['refinement'] / len(result.poses)
     return times, result.poses
+
+
+def _time_decode(from_compressed, compressed):
+    """Time decoding one compressed frame, in ms."""
+    start = time.perf_counter()
+    from_compressed(compressed)
+    return _ms(start, time.perf_counter())
 
 
 def _time_tracking(pipeline, camera, buffer, from_buffer, build_messages, poses, iterations):
