@@ -19,7 +19,9 @@ The node runs as a child process; the bag is played in lockstep (see ``graph.rep
 node's outputs are recorded into a results bag beside the JSON, and its poses (those of the
 PoseStamped topics, and separately those of ``~/detections``) are scored against the bag's
 ground truth by ``core.eval.recorded_poses`` with the scoring code of ``bbpose eval``.
-``--video`` writes each frame's estimates beside its ground truth as an .mp4.
+``--video`` writes each frame's estimates beside its ground truth as an .mp4. A bag of
+compressed images (``make-bag --compressed``) is played to a node started with
+``image_transport:=compressed`` (``with_transport``).
 """
 
 import argparse
@@ -60,7 +62,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``replay-eval`` subcommand."""
     parser = subparsers.add_parser(
         'replay-eval', help='replay a bag through bbpose_node and score its poses',
-        description='Start bbpose_node, play a bag made by make-bag into it (each frame '
+        description='Start bbpose_node, play a bag made by make-bag (raw or --compressed '
+                    'images: the node gets the image_transport to match) into it (each frame '
                     'after the previous one is answered), record its outputs into a results '
                     'bag beside --json, and score its poses against the ground truth of the bag '
                     'like bbpose eval (same table and JSON keys, plus frames sent/answered '
