@@ -186,3 +186,15 @@ def test_untrusted_regions_are_left_out_of_the_heatmap_loss(lmo_root, tmp_path):
     figures = adapt_detector(network, TrainingCache(tmp_path / 'labels'), regions,
                              HeadTraining(steps=20, passes=1), progress=False)
     assert figures['loss_after'] < figures['loss_before']
+
+
+@pytest.mark.slow
+def test_a_bag_adapts_and_its_frames_are_known_by_their_pixels(lmo_root, tmp_path):
+    bag, out = tmp_path / 'bag', tmp_path / 'out'
+    assert main(['make-bag', '--dataset', str(lmo_root), '--out', str(bag),
+                 '--max-frames', '6']) == 0
+    assert main(['adapt', '--bag', str(bag), '--out', str(out), '--rounds', '1']) == 0
+    images = {image_fingerprint(f.read()) for f in dataset_frames(lmo_root)[:6]}
+    assert adapted_frames(out / 'qnet.pt', 'qnet') == images
+    assert main(['adapt', '--bag', str(bag), '--out', str(tmp_path / 'other'),
+                 '--image-topic', '/nothing']) == 2

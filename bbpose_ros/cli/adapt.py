@@ -107,8 +107,9 @@ def run(args: argparse.Namespace) -> int:
     labels = report['labels'][f'round{settings.rounds}']
     print('labels of the last round: ' + ', '.join(f'{name} {c["accepted"]}'
                                                    for name, c in labels.items()))
-    print(f'done in {report["seconds"]["total"] / 60:.1f} min; run the node with '
-          f'--params-file {args.out / "params.yaml"}')
+    print(f'done in {report["seconds"]["total"] / 60:.1f} min (peak memory '
+          f'{report["peak_rss_mb"] / 1024:.1f} GB); run the node with:\n'
+          f'  .venv/bin/bbpose_node --ros-args --params-file {args.out / "params.yaml"}')
     if not labels or not any(c['accepted'] for c in labels.values()):
         raise InputError('no label was accepted')
     return 0

@@ -40,6 +40,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 import json
 from pathlib import Path
+import resource
 import shutil
 import time
 from typing import Any
@@ -168,6 +169,8 @@ class Adaptation:
         self._params()
         self.report['seconds']['total'] = round(sum(
             v for k, v in self.report['seconds'].items() if k != 'total'), 1)
+        self.report['peak_rss_mb'] = round(
+            resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
         write_json_atomic(report_path, self.report)
         return self.report
 
