@@ -40,9 +40,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 import json
 from pathlib import Path
-import resource
 import shutil
-import time
 from typing import Any
 
 import cv2
@@ -69,6 +67,7 @@ from bbpose_ros.core.training.object_rows import RowTraining
 from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
+from bbpose_ros.core.training.staged_folder import StagedFolder
 from bbpose_ros.core.viz import draw_box_2d, draw_label
 
 STUDENTS = ('detector', 'qnet')
@@ -147,43 +146,31 @@ class Adaptation:
         self.out, self.settings = Path(out), settings
         self.progress, self.log, self.command = progress, log, command
         self.report: dict[str, Any] = {}
+        self.folder: StagedFolder | None = None
 
     def run(self) -> dict[str, Any]:
         """Run the stages not yet done; return the report (also in ``report.json``)."""
-        self.out.mkdir(parents=True, exist_ok=True)
-        report_path = self.out / 'report.json'
-        self.report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+        self.folder = StagedFolder(self.out, self.log)
+        self.report = self.folder.report
         self.report.update(command=self.command, git_commit=git_commit(),
                            settings=asdict(self.settings), frames=len(self.frames),
                            objects=list(self.models))
-        self.report.setdefault('seconds', {})
-        self._stage('frames', self._fingerprints, self.out / 'frames.json')
-        self._check_inputs()
+        stage = self.folder.stage
+        stage('frames', self._fingerprints, self.out / 'frames.json')
+        self.folder.check_inputs({
+            'frames': self.fingerprints, 'objects': list(self.models),
+            'base_weights': {k: str(getattr(self.base, k)) for k in ('detector', 'qnet',
+                                                                     'dense')},
+            'settings': asdict(self.settings)})
         weights = self.base
         for number in range(1, self.settings.rounds + 1):
             weights = self._round(number, weights)
-        self._stage('export', lambda: self._export(weights), self.out / 'qnet.pt')
-        self._stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
-        self._stage('pseudo_labels', self._pseudo_labels, self.out / 'pseudo_labels')
-        self._stage('preview', self._preview, self.out / 'preview.png')
+        stage('export', lambda: self._export(weights), self.out / 'qnet.pt')
+        stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
+        stage('pseudo_labels', self._pseudo_labels, self.out / 'pseudo_labels')
+        stage('preview', self._preview, self.out / 'preview.png')
         self._params()
-        self.report['seconds']['total'] = round(sum(
-            v for k, v in self.report['seconds'].items() if k != 'total'), 1)
-        self.report['peak_rss_mb'] = round(
-            resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
-        write_json_atomic(report_path, self.report)
-        return self.report
-
-    def _stage(self, name, work, output):
-        """Run ``work()`` unless ``output`` exists; time it into the report."""
-        if Path(output).exists():
-            self.log(f'[{name}] done before: {output}')
-            return
-        self.log(f'[{name}] ...')
-        start = time.monotonic()
-        work()
-        self.report['seconds'][name] = round(time.monotonic() - start, 1)
-        write_json_atomic(self.out / 'report.json', self.report)
+        return self.folder.finish()
 
     def _fingerprints(self):
         """Write ``frames.json``: each frame's key and pixel fingerprint."""
@@ -197,33 +184,16 @@ class Adaptation:
         """SHA-256 pixel fingerprints of the recording's frames, in order (``frames.json``)."""
         return [e['sha256'] for e in json.loads((self.out / 'frames.json').read_text())]
 
-    def _check_inputs(self):
-        """Write ``inputs.json``, or refuse a folder made from other inputs."""
-        inputs = {'frames': self.fingerprints, 'objects': list(self.models),
-                  'base_weights': {k: str(getattr(self.base, k)) for k in ('detector', 'qnet',
-                                                                           'dense')},
-                  'settings': asdict(self.settings)}
-        inputs = json.loads(json.dumps(inputs))    # tuples as JSON lists, for the comparison
-        path = self.out / 'inputs.json'
-        if path.is_file():
-            before = json.loads(path.read_text())
-            changed = sorted(k for k in set(before) | set(inputs)
-                             if before.get(k) != inputs.get(k))
-            if changed:
-                raise InputError(f'{self.out} was made from other inputs ({", ".join(changed)} '
-                                 f'differ, {path}); choose a new --out')
-        write_json_atomic(path, inputs)
-
     def _round(self, number: int, teacher_weights: WeightFiles) -> WeightFiles:
         """Run round ``number`` with the teacher on ``teacher_weights``; its students' files."""
         folder = self.out / f'round{number}'
-        self._stage(f'round{number}_teacher', lambda: self._teach(folder, teacher_weights),
-                    folder / 'teacher.json')
-        self._stage(f'round{number}_labels', lambda: self._select(folder, number),
-                    folder / 'labels')
+        stage = self.folder.stage
+        stage(f'round{number}_teacher', lambda: self._teach(folder, teacher_weights),
+              folder / 'teacher.json')
+        stage(f'round{number}_labels', lambda: self._select(folder, number), folder / 'labels')
         for kind in STUDENTS:
-            self._stage(f'round{number}_{kind}', lambda kind=kind: self._student(folder, kind),
-                        folder / f'{kind}.pt')
+            stage(f'round{number}_{kind}', lambda kind=kind: self._student(folder, kind),
+                  folder / f'{kind}.pt')
         return replace(self.base, detector=folder / 'detector.pt', qnet=folder / 'qnet.pt')
 
     def _teach(self, folder, weights):

@@ -39,9 +39,7 @@ from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 import json
 from pathlib import Path
-import resource
 import shutil
-import time
 from typing import Any
 
 import cv2
@@ -69,6 +67,7 @@ from bbpose_ros.core.training.quantization import (calibration_crops, calibratio
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
+from bbpose_ros.core.training.staged_folder import StagedFolder
 
 NETWORKS = ('detector', 'qnet', 'dense')
 # Rolls of the rendered objects about the optical axis, degrees: upright objects seen by a
@@ -195,66 +194,41 @@ class AddObject:
                              'choose another --name')
         self.objects = self.known + [new.name]
         self.report: dict[str, Any] = {}
+        self.folder: StagedFolder | None = None
 
     def run(self) -> dict[str, Any]:
         """Run the stages not yet done; return the report (also in ``report.json``)."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.folder = StagedFolder(self.out, self.log)
         self._check_inputs()
-        report_path = self.out / 'report.json'
-        self.report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+        self.report = self.folder.report
         self.report.update(object=self.new.name, objects=self.objects, command=self.command,
                            settings=asdict(self.settings), git_commit=git_commit())
-        self.report.setdefault('seconds', {})
-        self._stage('dataset', self._dataset, self.out / 'dataset')
+        stage = self.folder.stage
+        stage('dataset', self._dataset, self.out / 'dataset')
         if not (self.out / 'preview.png').exists():       # the renders' last reader
-            self._stage('renders', self._renders, None)
+            stage('renders', self._renders, None)
         for kind in NETWORKS:
-            self._stage(kind, lambda kind=kind: self._network(kind), self.out / f'{kind}.pt')
-        self._stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
-        self._stage('preview', self._preview, self.out / 'preview.png')
+            stage(kind, lambda kind=kind: self._network(kind), self.out / f'{kind}.pt')
+        stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
+        stage('preview', self._preview, self.out / 'preview.png')
         self._params()
         if not self.keep_renders and (self.out / 'renders').exists():
             size = _folder_bytes(self.out / 'renders')
             shutil.rmtree(self.out / 'renders')
             self.log(f'[renders] removed ({size / 2 ** 20:.0f} MB; --keep-renders keeps them)')
-        self.report['seconds']['total'] = round(sum(
-            v for k, v in self.report['seconds'].items() if k != 'total'), 1)
-        self.report['peak_rss_mb'] = round(max(
-            resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF,
-                                                          resource.RUSAGE_CHILDREN)) / 1024)
         self.report['disk_mb'] = round(_folder_bytes(self.out) / 2 ** 20, 1)
-        write_json_atomic(report_path, self.report)
-        return self.report
-
-    def _stage(self, name, work, output):
-        """Run ``work()`` unless ``output`` exists; time it into the report."""
-        if output is not None and Path(output).exists():
-            self.log(f'[{name}] done before: {output}')
-            return
-        self.log(f'[{name}] ...')
-        start = time.monotonic()
-        work()
-        self.report['seconds'][name] = round(time.monotonic() - start, 1)
-        write_json_atomic(self.out / 'report.json', self.report)
+        return self.folder.finish()
 
     def _check_inputs(self):
-        """Write ``inputs.json``, or refuse a folder made from other inputs."""
-        inputs = {'name': self.new.name, 'mesh_sha256': sha256_of_arrays(
-                      self.new.mesh.vertices, self.new.mesh.faces, self.new.mesh.colors),
-                  'symmetries': np.round(self.new.symmetries, 6).tolist(),
-                  'base_weights': {k: file_sha256(v) for k, v in self.base_weights.items()},
-                  'base_dataset': str(self.base_dataset.resolve()),
-                  'settings': asdict(self.settings),
-                  'backgrounds': 0 if self.backgrounds is None else len(self.backgrounds.paths)}
-        path = self.out / 'inputs.json'
-        if path.is_file():
-            before = json.loads(path.read_text())
-            changed = sorted(k for k in set(before) | set(inputs)
-                             if before.get(k) != inputs.get(k))
-            if changed:
-                raise InputError(f'{self.out} was made from other inputs ({", ".join(changed)} '
-                                 f'differ, {path}); choose a new --out')
-        write_json_atomic(path, inputs)
+        """Record the inputs, or refuse a folder made from others (``StagedFolder``)."""
+        self.folder.check_inputs({
+            'name': self.new.name, 'mesh_sha256': sha256_of_arrays(
+                self.new.mesh.vertices, self.new.mesh.faces, self.new.mesh.colors),
+            'symmetries': np.round(self.new.symmetries, 6).tolist(),
+            'base_weights': {k: file_sha256(v) for k, v in self.base_weights.items()},
+            'base_dataset': str(self.base_dataset.resolve()),
+            'settings': asdict(self.settings),
+            'backgrounds': 0 if self.backgrounds is None else len(self.backgrounds.paths)})
 
     def _dataset(self):
         """Write ``dataset/``: camera, the known meshes and the new one, names table."""
