@@ -34,7 +34,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.label_precision import label_precision
 from bbpose_ros.core.inference.weights import DEFAULT_DETECTOR_WEIGHTS, load_network
 from bbpose_ros.core.training.cache import TrainingCache
-from bbpose_ros.ros.params import read_config, read_params_file
+from bbpose_ros.ros.params import read_config
+from bbpose_ros.ros.params_file import read_params_file
 
 BOX = np.array([100.0, 100.0, 200.0, 180.0])
 

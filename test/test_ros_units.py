@@ -41,7 +41,7 @@ from bbpose_ros.ros.pairing import LatestSlot, NEWER_PAIRED, Pairing, QUEUE_FULL
 from bbpose_ros.ros.param_specs import APPLIES
 from bbpose_ros.ros.params import check_value, checked_options, declare_parameters
 from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
-from bbpose_ros.ros.params import read_params_file
+from bbpose_ros.ros.params_file import read_params_file
 from bbpose_ros.ros.throttle import KeyedThrottle, ProblemLog
 
 SECOND = 1_000_000_000

@@ -79,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
                                                    DEFAULT_DETECTOR_WEIGHTS,
                                                    DEFAULT_QNET_WEIGHTS)
     from bbpose_ros.core.pipeline.loader import WeightFiles
-    from bbpose_ros.ros.params import package_config_file, read_config, read_params_file
+    from bbpose_ros.ros.params import read_config
+    from bbpose_ros.ros.params_file import package_config_file, read_params_file
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -49,7 +49,8 @@ from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.node_pipeline import build_node_pipeline
-from bbpose_ros.ros.params import read_config, read_params_file
+from bbpose_ros.ros.params import read_config
+from bbpose_ros.ros.params_file import read_params_file
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -120,7 +120,7 @@ def params_settings(path: Path | None) -> dict[str, Any]:
     """{name: value} of the pipeline settings in a node parameters file (none: {})."""
     if path is None:
         return {}
-    from bbpose_ros.ros.params import read_params_file
+    from bbpose_ros.ros.params_file import read_params_file
     values = read_params_file(path)
     return {name: values[name] for name in EVAL_SETTINGS}
 
@@ -129,7 +129,7 @@ def weight_files(args: argparse.Namespace) -> WeightFiles:
     """Return the weight files of the options, else of ``--params``, else the shipped ones."""
     named = {}
     if args.params is not None:
-        from bbpose_ros.ros.params import read_params_file
+        from bbpose_ros.ros.params_file import read_params_file
         values = read_params_file(args.params)
         named = {kind: Path(values[f'{kind}_weights']) for kind in ('detector', 'qnet', 'dense')
                  if values[f'{kind}_weights']}

@@ -53,7 +53,8 @@ from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.video import check_video_path, write_video
-from bbpose_ros.ros.params import read_params_file, resolve_dataset_dir
+from bbpose_ros.ros.params import resolve_dataset_dir
+from bbpose_ros.ros.params_file import read_params_file
 
 OVERLAY_FRAMES = 4
 

@@ -30,11 +30,10 @@ frame it takes, so frames that a newer one replaces are never decoded.
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 import re
 import time
 
-import numpy as np
 from rclpy.event_handler import QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode
 from rclpy.qos import QoSPolicyKind, QoSProfile
@@ -49,6 +48,7 @@ from bbpose_ros.core.geometry.camera_info import CameraModel
 from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import incompatible_qos_text, InputWatch, NodeStats
+from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.pairing import Pairing, StampPairer
 from bbpose_ros.ros.throttle import ProblemLog
 
@@ -64,24 +64,6 @@ STALE_INPUT_S = 3.0
 FUTURE_STAMP_TOLERANCE_NS = 1_000_000_000
 # image_transport's topic suffix of its compressed transport.
 COMPRESSED_SUFFIX = '/compressed'
-
-
-@dataclass(frozen=True)
-class Frame:
-    """
-    An image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt.
-
-    ``stream`` counts the backward stamp jumps before it: frames of one stream follow
-    each other in time, so a tracker resets when the stream changes. A compressed image
-    waits undecoded: ``image_rgb`` None and ``compressed`` its message, until
-    ``FrameIntake.decode``.
-    """
-
-    header: Header
-    image_rgb: np.ndarray | None
-    received_s: float
-    stream: int
-    compressed: CompressedImage | None = None
 
 
 class FrameIntake:
@@ -307,8 +289,3 @@ class FrameIntake:
 
     def _sync_slop(self) -> float:
         return self._node.get_parameter('sync_slop').value
-
-
-def stamp_text(header: Header) -> str:
-    """Return a header's stamp as 'seconds.nanoseconds' for log lines."""
-    return f'{header.stamp.sec}.{header.stamp.nanosec:09d}'

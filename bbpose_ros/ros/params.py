@@ -34,15 +34,12 @@ documents each one, with these defaults (a test holds them equal).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TYPE_CHECKING
 
-from ament_index_python.packages import get_package_share_directory
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-import yaml
 
 from bbpose_ros.core.data.models import LMO_OBJECTS
 from bbpose_ros.core.errors import InputError
@@ -265,41 +262,3 @@ def resolve_dataset_dir(text: str) -> Path:
     """
     check_value('dataset_dir', text)
     return dataset_path(text)
-
-
-def read_params_file(path: Path | str, overrides: Iterable[str] = (),
-                     node_name: str = NODE_NAME) -> dict[str, Any]:
-    """
-    Read the parameter values a node gets from a ROS 2 parameters file, as rclpy does.
-
-    The ``/**`` block applies first, then the node's own block; ``overrides`` are
-    ``name:=value`` strings (YAML values, as ``-p`` takes them) applied last. Parameters
-    left unset get their declared default.
-    """
-    path = Path(path)
-    try:
-        content = yaml.safe_load(path.read_text()) or {}
-    except FileNotFoundError as err:
-        raise InputError(f'parameters file not found: {path}') from err
-    except yaml.YAMLError as err:
-        raise InputError(f'parameters file {path} is not valid YAML: {err}') from err
-    values = {name: spec.default for name, spec in PARAMETERS.items()}
-    for block in ('/**', node_name, f'/{node_name}'):
-        values.update((content.get(block) or {}).get('ros__parameters') or {})
-    for override in overrides:
-        name, separator, text = override.partition(':=')
-        if not separator:
-            raise InputError(f'parameter override "{override}" is not name:=value')
-        values[name] = yaml.safe_load(text)
-    return values
-
-
-def package_config_file(name: str) -> Path:
-    """Return config/<name> of the source tree, else of the installed share/bbpose_ros."""
-    source = Path(__file__).resolve().parents[2] / 'config' / name
-    if source.is_file():
-        return source
-    try:
-        return Path(get_package_share_directory('bbpose_ros')) / 'config' / name
-    except (LookupError, OSError):   # not installed, or AMENT_PREFIX_PATH unset
-        return source

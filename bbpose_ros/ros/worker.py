@@ -35,7 +35,7 @@ from sensor_msgs.msg import CameraInfo
 from bbpose_ros.core.geometry.camera_info import CameraModel, Rectifier
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.ros.diagnostics import NodeStats
-from bbpose_ros.ros.intake import Frame, stamp_text
+from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.node_pipeline import NodePipeline
 from bbpose_ros.ros.pairing import LatestSlot
 from bbpose_ros.ros.publishers import FramePublishers

@@ -46,7 +46,8 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
-from bbpose_ros.ros.params import NODE_NAME, package_config_file
+from bbpose_ros.ros.params import NODE_NAME
+from bbpose_ros.ros.params_file import package_config_file
 
 DEFAULT_PARAMS = package_config_file('bbpose.yaml')   # the node's parameters file
 FASTDDS_PROFILE = package_config_file('fastdds_large_images.xml')
