@@ -146,3 +146,19 @@ def test_a_backward_stamp_jump_resets_the_tracks(served, monkeypatch):
     assert resets == [1]
     assert answer(client, 1501) is not None               # the new stream goes on
     assert resets == [1]
+
+
+def test_stream_mode_job_ends_with_deactivate(served):
+    node, client = served
+    assert set_parameter(client, 'tracking_stream', True)
+    assert client.spin_until(lambda: node.config.options.tracking_stream)
+    tracker = node.pipeline.pipeline
+    assert isinstance(tracker, PoseTracker)
+    assert answer(client, 3000) is not None     # answered by the tracks, handed on
+    assert tracker.background_running
+    assert node.trigger_deactivate() == node_module.SUCCESS
+    assert not tracker.background_running
+    assert not [t for t in threading.enumerate() if t.name == 'bbpose_detection']
+    assert node.trigger_activate() == node_module.SUCCESS
+    assert answer(client, 3001) is not None
+    assert node.pipeline.pipeline is tracker and tracker.background_running

@@ -35,9 +35,10 @@ every frame, and where step 2 asks for detection the frame is handed to a
 frame handed (while a frame waits there, each newer one replaces it). The poses of a
 finished job are adopted at the start of the next frame as in step 3, before step 1, whose
 refinement carries them from their frame to the current one; poses that start no track are
-reported in that frame only. A frame's timings then carry the adopted job's
-``stream_job`` (how long the full pipeline ran) and ``stream_age`` (how old its poses are
-when adopted: from their frame's handing over to the adoption), milliseconds.
+carried the same way and reported in that frame only (those that fail are dropped). A
+frame's timings then carry the adopted job's ``stream_job`` (how long the full pipeline
+ran) and ``stream_age`` (how old its poses are when adopted: from their frame's handing
+over to the adoption), milliseconds.
 
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
@@ -163,8 +164,9 @@ class PoseTracker:
             untracked = self._adopt(finished.result.poses)
             timer.timings_ms.update(stream_job=finished.run_ms,
                                     stream_age=(timer.start_s - finished.handed_s) * 1e3)
-        tracked = bool(self.tracks)
+        tracked = bool(self.tracks or untracked)
         lost = self._follow_tracks(image_rgb, camera)
+        untracked = self._carry(image_rgb, camera, untracked)
         timer.lap('tracking' if tracked else None)
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
@@ -196,6 +198,20 @@ class PoseTracker:
                                               translation=result.translation,
                                               refinement_score=result.score), histograms)
         return lost
+
+    def _carry(self, image_rgb, camera, poses):
+        """Carry poses of an earlier frame to this one (stream mode); drop those that fail."""
+        refiner = self.pipeline.refiner
+        moving = [p for p in poses if p.object_name in refiner.viewpoint_models]
+        if not moving:
+            return list(poses)
+        results = refiner.refine_tracks(
+            image_rgb, camera, [p.object_name for p in moving], [p.rotation for p in moving],
+            [p.translation for p in moving], [None] * len(moving), TRACK_ITERATIONS)
+        carried = [p for p in poses if p.object_name not in refiner.viewpoint_models]
+        return carried + [replace(p, rotation=r.rotation, translation=r.translation,
+                                  refinement_score=r.score)
+                          for p, r in zip(moving, results) if r.ok]
 
     def _adopt(self, poses):
         """Start or replace tracks with detected poses; return those of untracked objects."""
