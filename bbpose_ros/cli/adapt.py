@@ -28,7 +28,6 @@ import sys
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_blocks_argument, add_dataset_argument, in_blocks
-from bbpose_ros.core.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -48,7 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              'images of --dataset)')
     parser.add_argument('--split', default='test',
                         help='without --bag, the split of --dataset whose images to adapt on '
-                             '(its scene_gt*.json, if any, are not read; default %(default)s)')
+                             '(its ground-truth files, if any, are not read; default %(default)s)')
     parser.add_argument('--image-topic', default=topics.IMAGE_TOPIC,
                         help='image topic of --bag (default %(default)s)')
     parser.add_argument('--camera-info-topic', default=topics.CAMERA_INFO_TOPIC,
@@ -111,6 +110,4 @@ def run(args: argparse.Namespace) -> int:
     print(f'done in {report["seconds"]["total"] / 60:.1f} min (peak memory '
           f'{report["peak_rss_mb"] / 1024:.1f} GB); run the node with:\n'
           f'  .venv/bin/bbpose_node --ros-args --params-file {args.out / "params.yaml"}')
-    if not labels or not any(c['accepted'] for c in labels.values()):
-        raise InputError('no label was accepted')
     return 0

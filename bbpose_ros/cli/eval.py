@@ -108,33 +108,33 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 EVAL_SETTINGS = tuple(name for name in SETTINGS if not name.startswith('tracking'))
 
 
-def build_pipeline(models: Mapping[str, ObjectModel],
-                   args: argparse.Namespace) -> PosePipeline | PoseTracker:
-    """Build the pipeline of the options; the stages the ground truth replaces are not loaded."""
-    options = options_of(args, EVAL_SETTINGS, params_settings(args.params))
-    return load_pipeline(models, options, weight_files(args),
+def build_pipeline(models: Mapping[str, ObjectModel], args: argparse.Namespace,
+                   params: Mapping[str, Any], weights: WeightFiles) -> PosePipeline | PoseTracker:
+    """
+    Build the pipeline of the options over ``params``; ground-truth stages are not loaded.
+
+    ``params`` are the node parameter values of ``--params`` ({} without it), ``weights``
+    the files ``weight_files`` chose.
+    """
+    options = options_of(args, EVAL_SETTINGS,
+                         {name: params[name] for name in EVAL_SETTINGS if name in params})
+    return load_pipeline(models, options, weights,
                          StagesGiven(boxes=args.boxes == 'gt', rotations=args.rotation == 'gt'))
 
 
-def params_settings(path: Path | None) -> dict[str, Any]:
-    """{name: value} of the pipeline settings in a node parameters file (none: {})."""
+def params_values(path: Path | None) -> dict[str, Any]:
+    """Return the node parameter values of a parameters file ({} without one)."""
     if path is None:
         return {}
     from bbpose_ros.ros.params_file import read_params_file
-    values = read_params_file(path)
-    return {name: values[name] for name in EVAL_SETTINGS}
+    return read_params_file(path)
 
 
-def weight_files(args: argparse.Namespace) -> WeightFiles:
-    """Return the weight files of the options, else of ``--params``, else the shipped ones."""
-    named = {}
-    if args.params is not None:
-        from bbpose_ros.ros.params_file import read_params_file
-        values = read_params_file(args.params)
-        named = {kind: Path(values[f'{kind}_weights']) for kind in ('detector', 'qnet', 'dense')
-                 if values[f'{kind}_weights']}
-    return WeightFiles(*(getattr(args, f'{kind}_weights') or named.get(kind)
-                         for kind in ('detector', 'qnet', 'dense')))
+def weight_files(args: argparse.Namespace, params: Mapping[str, Any]) -> WeightFiles:
+    """Return the weight files of the options, else of ``params``, else the shipped ones."""
+    return WeightFiles(*(getattr(args, f'{kind}_weights') or
+                         (Path(params[f'{kind}_weights']) if params.get(f'{kind}_weights')
+                          else None) for kind in ('detector', 'qnet', 'dense')))
 
 
 def without_adapted(frames: Sequence[BopFrame], weights: WeightFiles,
@@ -192,15 +192,16 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table(s) and write the JSON; returns the exit code."""
     dataset = BopDataset(args.dataset, args.split)
     models = dataset.load_models(args.objects)
+    params = params_values(args.params)
+    weights = weight_files(args, params)
     frames = in_blocks(dataset.frames(), args.blocks, args.block_size)[:args.max_frames]
-    frames = without_adapted(frames, weight_files(args),
-                             args.skip_adapted)
+    frames = without_adapted(frames, weights, args.skip_adapted)
     if not frames:
         raise InputError(f'no frames to score in {args.dataset / args.split}')
     levels = args.perturb_gt or [None]
     if args.perturb_gt is not None and (args.boxes != 'gt' or args.rotation != 'gt'):
         raise InputError('--perturb-gt needs --boxes gt --rotation gt')
-    pipeline = build_pipeline(models, args)
+    pipeline = build_pipeline(models, args, params, weights)
     recorder = None
     if args.boxes == 'detector':
         recorder = pipeline.detector = RecordingDetector(pipeline.detector)
@@ -227,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
                         'boxes': args.boxes,
                         'rotation': args.rotation, 'min_visib': args.min_visib,
                         'params': None if args.params is None else str(args.params),
-                        **{f'{kind}_weights': _weights_name(getattr(weight_files(args), kind))
+                        **{f'{kind}_weights': _weights_name(getattr(weights, kind))
                            for kind in ('detector', 'qnet', 'dense')},
                         **dataclasses.asdict(pipeline.options),
                         'detector_network': getattr(pipeline.detector, 'precision', None),

@@ -57,13 +57,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'{args.adapt_out}: no round of bbpose adapt found (round1/verdicts'
                          '.json)')
     keys = {f'{f.scene_id}/{f.image_id}' for f in frames}
+    models = dataset.load_models()
     report = {}
     for name, verdicts in rounds.items():
         missing = sorted(set(verdicts) - keys)
         if missing:
             raise InputError(f'{args.adapt_out} adapted on frames {args.dataset} lacks '
                              f'(first: {missing[0]}); give the dataset it adapted on')
-        report[name] = label_precision(verdicts, frames, dataset.load_models())
+        report[name] = label_precision(verdicts, frames, models)
         print(format_precision(name, report[name]))
     if args.json is not None:
         write_json_atomic(args.json, report)

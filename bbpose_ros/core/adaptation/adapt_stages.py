@@ -28,9 +28,10 @@ first stage whose output is missing:
 3. ``detector.pt``, ``qnet.pt`` (the last round's, recording in their metadata the
    fingerprints of the frames they adapted on: ``bbpose eval`` refuses to score those) and
    their int8 graphs, calibrated on the recording.
-4. ``pseudo_labels/``: the last round's accepted labels as a BOP split (``camera.json``,
-   ``<split>/000000/`` with ``rgb/``, ``scene_camera.json``, ``scene_gt.json``,
-   ``scene_gt_info.json``), an auto-annotation other tools can train on.
+4. ``pseudo_labels/``: the last round's accepted labels as a BOP split written as
+   ``bbpose synth`` writes one (``synth.export.BopSceneWriter``: images, cameras, poses,
+   amodal boxes and the labels' confidences; ``source_frames.json`` names each image's
+   frame in the recording), an auto-annotation other tools can train on.
 5. ``preview.png`` (accepted labels green, refused ones red with their verdict),
    ``params.yaml`` (the base parameters with the adapted weight files) and ``report.json``
    (labels per object and round, student figures, stage times).
@@ -61,7 +62,7 @@ from bbpose_ros.core.inference.int8_graphs import int8_graph_path
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
 from bbpose_ros.core.pipeline.loader import WeightFiles
-from bbpose_ros.core.synth.export import camera_json, uv_to_bop_box
+from bbpose_ros.core.synth.export import BopSceneWriter, write_json
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.object_rows import RowTraining
 from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
@@ -205,31 +206,28 @@ class Adaptation:
             poses[frame.key] = [p.record() for p in teacher(frame.read(), frame.camera)]
         write_json_atomic(folder / 'teacher.json', poses)
 
-    def teacher_poses(self, number: int) -> dict[str, list[TeacherPose]]:
-        """{frame key: [TeacherPose]} of round ``number`` (``teacher.json``)."""
-        raw = json.loads((self.out / f'round{number}' / 'teacher.json').read_text())
-        return {key: [TeacherPose.from_record(r) for r in records]
-                for key, records in raw.items()}
-
     def verdicts(self, number: int) -> dict[str, list[Verdict]]:
-        """{frame key: [Verdict]} of round ``number`` (its gates over its teacher's poses)."""
-        return select_labels(self.teacher_poses(number), self.settings.selection_of(number))
+        """{frame key: [Verdict]} of round ``number``, as ``_select`` gave them."""
+        return read_round(self.out / f'round{number}')
 
     def _select(self, folder, number):
         """Judge the teacher's poses; write ``verdicts.json`` and the label set."""
-        verdicts = self.verdicts(number)
-        write_json_atomic(folder / 'verdicts.json', {
-            key: [{'object': v.pose.object_name, 'verdict': v.verdict} for v in judged]
-            for key, judged in verdicts.items()})
+        poses = json.loads((folder / 'teacher.json').read_text())
+        verdicts = select_labels({key: [TeacherPose.from_record(r) for r in records]
+                                  for key, records in poses.items()},
+                                 self.settings.selection_of(number))
         counts = verdict_counts(verdicts)
         self.report.setdefault('labels', {})[f'round{number}'] = counts
         accepted = sum(c['accepted'] for c in counts.values())
         self.log(f'[round{number}] {accepted} labels accepted of '
                  f'{sum(sum(c.values()) for c in counts.values())} poses: ' +
                  ', '.join(f'{name} {c["accepted"]}' for name, c in counts.items()))
-        detector = load_network(self.base.detector, 'detector', list(self.models))
+        write_json_atomic(folder / 'verdicts.json', {
+            key: [{'object': v.pose.object_name, 'verdict': v.verdict} for v in judged]
+            for key, judged in verdicts.items()})
+        metadata, _ = read_weights(self.base.detector, 'detector')
         write_label_set(folder / 'labels', self.frames, verdicts, list(self.models),
-                        detector.config.input_size)
+                        metadata['input_size'])
 
     def _student(self, folder, kind):
         """Train one student from the base weights on the round's labels; write its file."""
@@ -264,8 +262,7 @@ class Adaptation:
     def _int8(self):
         """Write both students' int8 graphs, calibrated on the last round's label set."""
         cache = TrainingCache(self.out / f'round{self.settings.rounds}' / 'labels')
-        detector = load_network(self.out / 'detector.pt', 'detector')
-        frames = calibration_images(cache.images, detector.config.input_size, len(cache.images))
+        frames = calibration_images(cache.images, cache.input_size, len(cache.images))
         quantize_network(self.out / 'detector.pt', 'detector', (frames,),
                          int8_graph_path(self.out / 'detector.pt'), 'bbpose adapt')
         qnet = load_network(self.out / 'qnet.pt', 'qnet')
@@ -277,30 +274,18 @@ class Adaptation:
         """Write the last round's accepted labels as a BOP dataset folder."""
         verdicts = self.verdicts(self.settings.rounds)
         ids = {name: model.obj_id for name, model in self.models.items()}
-        camera = self.frames[0].camera
         with atomic_output(self.out / 'pseudo_labels') as staging:
-            scene = staging / 'test' / '000000'
-            (scene / 'rgb').mkdir(parents=True)
-            gts, infos, cameras, keys = {}, {}, {}, {}
+            writer = BopSceneWriter(staging, self.frames[0].camera, ids, split='test')
+            sources = {}
             for image_id, frame in enumerate(self.frames):
                 labels = [v.pose for v in verdicts.get(frame.key, []) if v.accepted]
-                if not labels:
-                    continue
-                cv2.imwrite(str(scene / 'rgb' / f'{image_id:06d}.png'),
-                            cv2.cvtColor(frame.read(), cv2.COLOR_RGB2BGR))
-                cameras[str(image_id)] = {'cam_K': frame.camera.k.reshape(-1).tolist(),
-                                          'depth_scale': 1.0}
-                gts[str(image_id)] = [{'obj_id': ids[p.object_name],
-                                       'cam_R_m2c': p.rotation.reshape(-1).tolist(),
-                                       'cam_t_m2c': (p.translation * 1000.0).tolist()}
-                                      for p in labels]
-                infos[str(image_id)] = [{'bbox_obj': uv_to_bop_box(p.box_uv), 'visib_fract': 1.0,
-                                         'confidence': p.confidence} for p in labels]
-                keys[str(image_id)] = frame.key
-            for name, data in (('scene_gt.json', gts), ('scene_gt_info.json', infos),
-                               ('scene_camera.json', cameras), ('source_frames.json', keys)):
-                (scene / name).write_text(json.dumps(data, indent=1))
-            (staging / 'camera.json').write_text(json.dumps(camera_json(camera), indent=1))
+                if labels:
+                    writer.add_poses(image_id, frame.read(), frame.camera, labels,
+                                     [{'visib_fract': 1.0, 'confidence': p.confidence}
+                                      for p in labels])
+                    sources[str(image_id)] = frame.key
+            writer.finish()
+            write_json(writer.scene_dir / 'source_frames.json', sources)
 
     def _preview(self):
         """Write ``preview.png``: frames with accepted (green) and refused (red) labels."""
@@ -338,23 +323,19 @@ class Adaptation:
                                                    sort_keys=False))
 
 
-def read_rounds(out: Path | str) -> dict[str, dict[str, list[Verdict]]]:
-    """
-    {'round<r>': {frame key: [Verdict]}} of an output folder's finished selections.
-
-    Read from each round's ``teacher.json`` and ``verdicts.json`` (the verdicts as they were
-    given, whatever the settings now).
-    """
-    rounds = {}
-    for folder in sorted(Path(out).glob('round[0-9]')):
-        if not (folder / 'verdicts.json').is_file():
-            continue
-        poses = json.loads((folder / 'teacher.json').read_text())
-        verdicts = json.loads((folder / 'verdicts.json').read_text())
-        rounds[folder.name] = {
-            key: [Verdict(TeacherPose.from_record(p), v['verdict'])
+def read_round(folder: Path | str) -> dict[str, list[Verdict]]:
+    """{frame key: [Verdict]} of one round folder (its ``teacher.json`` and ``verdicts.json``)."""
+    folder = Path(folder)
+    poses = json.loads((folder / 'teacher.json').read_text())
+    verdicts = json.loads((folder / 'verdicts.json').read_text())
+    return {key: [Verdict(TeacherPose.from_record(p), v['verdict'])
                   for p, v in zip(poses[key], judged)] for key, judged in verdicts.items()}
-    return rounds
+
+
+def read_rounds(out: Path | str) -> dict[str, dict[str, list[Verdict]]]:
+    """{'round<r>': {frame key: [Verdict]}} of an output folder's finished selections."""
+    return {folder.name: read_round(folder) for folder in sorted(Path(out).glob('round[0-9]'))
+            if (folder / 'verdicts.json').is_file()}
 
 
 def adapted_frames(weights: Path | str, kind: str) -> set[str]:

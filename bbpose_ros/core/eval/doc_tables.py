@@ -190,7 +190,7 @@ TABLES = {
                                       '{:+.3f}'),
                                Column('95 % interval', (f'{{o}}.{key}.low', f'{{o}}.{key}.high'),
                                       '{:+.3f}'))),
-        last=('figures', '**all instances**')),
+        last=('figures', '**all instances**'), tool='bbpose compare'),
     'training_adapt_labels': RunsTable(
         'docs/training.md',
         tuple(column for name in ('round1', 'round2') for column in (
@@ -200,7 +200,8 @@ TABLES = {
             Column('translation median (mm)', (f'{name}.accepted_all.te_median_mm',),
                    '{:.0f}'))),
         (('adapted on blocks 1, 3, 5', 'adapt_labels_135'),
-         ('adapted on blocks 2, 4', 'adapt_labels_24')), first='fold'),
+         ('adapted on blocks 2, 4', 'adapt_labels_24')), first='fold',
+        tool='bbpose score-labels'),
     # docs/refinement.md
     'refinement_basin': ListTable(
         'docs/refinement.md', 'eval_gt_gt_sweep', 'sweep',

@@ -32,8 +32,9 @@ their reports give. Four kinds of table:
 * ``StagesTable``: one row per stage, one column per (bench report, mode);
 * ``ListTable``: one row per item of a list in one report (a ``--perturb-gt`` sweep).
 
-Every table starts with a line naming its reports; one holding bench reports also names
-their CPU, and refuses reports of different CPUs.
+Every table starts with a line naming its reports and the command that wrote them (its
+``tool``); one holding bench reports also names their CPU, and refuses reports of
+different CPUs.
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ class RunsTable:
     columns: tuple[Column, ...]
     rows: tuple[tuple[str, str], ...]
     first: str = 'run'
+    tool: str = 'bbpose eval'
 
     def reports(self) -> list[str]:
         """Name the reports the table reads, in order."""
@@ -108,6 +110,7 @@ class ObjectsTable:
     report: str
     columns: tuple[Column, ...]
     last: tuple[str, str] = ('mean', '**mean**')
+    tool: str = 'bbpose eval'
 
     def reports(self) -> list[str]:
         """Name the reports the table reads."""
@@ -140,6 +143,7 @@ class StagesTable:
     rows: tuple[tuple[str, tuple[str, ...], str], ...]
     columns: tuple[tuple[str, str, str], ...]
     first: str = 'stage'
+    tool: str = 'bbpose bench'
 
     def reports(self) -> list[str]:
         """Name the reports the table reads, in order."""
@@ -167,6 +171,7 @@ class ListTable:
     items: str
     label: Column
     columns: tuple[Column, ...]
+    tool: str = 'bbpose eval'
 
     def reports(self) -> list[str]:
         """Name the report the table reads."""
@@ -229,10 +234,7 @@ def caption(table: Table, load: Loader) -> str:
     benches = [load(name) for name in names if 'stages' in load(name) or 'latency' in
                load(name)]
     if not benches:
-        tool = 'bbpose compare' if all('figures' in load(name) for name in names) else \
-            'bbpose score-labels' if all('round1' in load(name) for name in names) else \
-            'bbpose eval'
-        return f'*`{tool}`; {made}.*'
+        return f'*`{table.tool}`; {made}.*'
     cpus = {str(b.get('cpu', 'an unrecorded CPU')) for b in benches}
     if len(cpus) > 1:
         raise InputError(f'{", ".join(names)} come from different CPUs: {sorted(cpus)}')

@@ -78,32 +78,42 @@ class BopSceneWriter:
         self.obj_ids = dict(obj_ids)
         self.scene_dir = self.root / split / f'{scene_id:06d}'
         (self.scene_dir / 'rgb').mkdir(parents=True)
-        (self.scene_dir / 'mask_visib').mkdir()
         self.scene_gt, self.scene_camera, self.scene_gt_info = {}, {}, {}
 
     def add(self, image_id: int, sample: SyntheticSample) -> None:
         """Write sample ``image_id`` (int)'s image and masks and record its ground truth."""
-        write_rgb_png(self.scene_dir / 'rgb' / f'{image_id:06d}.png', sample.image_rgb)
-        gts, infos = [], []
+        (self.scene_dir / 'mask_visib').mkdir(exist_ok=True)
+        infos = []
         for index, instance in enumerate(sample.instances):
             mask_path = self.scene_dir / 'mask_visib' / f'{image_id:06d}_{index:06d}.png'
             if not cv2.imwrite(str(mask_path), instance.mask.astype(np.uint8) * 255):
                 raise OSError(f'cannot write mask {mask_path}')
             visible_box = mask_box_uv(instance.mask)
-            gts.append({'obj_id': self.obj_ids[instance.object_name],
-                        'cam_R_m2c': instance.rotation.reshape(-1).tolist(),
-                        'cam_t_m2c': (instance.translation / MM_TO_M).tolist()})
-            infos.append({'bbox_obj': uv_to_bop_box(instance.box_uv),
-                          'bbox_visib': uv_to_bop_box(visible_box),
+            infos.append({'bbox_visib': uv_to_bop_box(visible_box),
                           'px_count_visib': int(np.count_nonzero(instance.mask)),
                           'visib_fract': float(instance.visib_fract),
-                          'box_uv': instance.box_uv.tolist(),
                           'visible_box_uv': visible_box.tolist()})
+        self.add_poses(image_id, sample.image_rgb, sample.camera, sample.instances, infos)
+
+    def add_poses(self, image_id: int, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                  poses: Sequence[Any], infos: Sequence[Mapping[str, Any]]) -> None:
+        """
+        Write image ``image_id`` (int) and record its poses and their amodal boxes.
+
+        Each pose has ``object_name``, ``rotation`` (3, 3) model-to-camera, ``translation``
+        (3,) metres and ``box_uv`` (4,) amodal box; ``infos`` adds its scene_gt_info fields
+        (visibility, visible box, a confidence: whatever the source knows).
+        """
+        write_rgb_png(self.scene_dir / 'rgb' / f'{image_id:06d}.png', image_rgb)
         key = str(image_id)
-        self.scene_gt[key] = gts
-        self.scene_gt_info[key] = infos
-        self.scene_camera[key] = {'cam_K': sample.camera.k.reshape(-1).tolist(),
-                                  'depth_scale': 1.0}
+        self.scene_gt[key] = [{'obj_id': self.obj_ids[pose.object_name],
+                               'cam_R_m2c': np.asarray(pose.rotation).reshape(-1).tolist(),
+                               'cam_t_m2c': (np.asarray(pose.translation) / MM_TO_M).tolist()}
+                              for pose in poses]
+        self.scene_gt_info[key] = [{'bbox_obj': uv_to_bop_box(pose.box_uv), **info,
+                                    'box_uv': np.asarray(pose.box_uv).tolist()}
+                                   for pose, info in zip(poses, infos)]
+        self.scene_camera[key] = {'cam_K': camera.k.reshape(-1).tolist(), 'depth_scale': 1.0}
 
     def finish(self) -> None:
         """Write ``camera.json`` and the scene's JSON files."""
