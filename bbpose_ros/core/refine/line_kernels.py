@@ -255,6 +255,32 @@ def _count_samples(samples, sample_counts, pose, line, counts, totals, sign):
         totals[side] += sign * taken
 
 
+@numba.njit(**_NUMBA)
+def _log_ratio(f, g, bound):
+    """Return log(f / g) of two colour frequencies, within +-bound; 0 when both are 0."""
+    if f == 0.0 and g == 0.0:
+        return 0.0
+    tiny = np.finfo(np.float64).tiny
+    return min(max(math.log(f + tiny) - math.log(g + tiny), -bound), bound)
+
+
+@numba.njit(**_NUMBA)
+def _line_pixel(bins, width, last_pixel, start_u, start_v, step_u, step_v, offset):
+    """Return (column, row, colour bin) of the pixel ``offset`` along a line from its start."""
+    # A valid line lies on the image (>= -0.5 before the shift, truncation rounds); the
+    # guard only keeps a float32 rounding at the last pixel in.
+    col = int(start_u + step_u * offset)
+    row = int(start_v + step_v * offset)
+    return col, row, bins[min(row * width + col, last_pixel)]
+
+
+@numba.njit(**_NUMBA)
+def _sigmoid(log_odds):
+    """Return the float32 probability of float32 log-odds (clipped to +-50 first)."""
+    log_odds = min(max(log_odds, np.float32(-50.0)), np.float32(50.0))
+    return np.float32(1.0) / (np.float32(1.0) + np.exp(-log_odds))
+
+
 @numba.njit(parallel=True, **_NUMBA)
 def contour_distributions(bins, width, height, centres, normals, valid, hist_f, hist_b, scale,
                           segments, h_b, h_diff, positions, min_variance, max_log_ratio,
@@ -303,7 +329,6 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
     functions, distributions = h_b.shape[0], positions.shape[0]
     use_masks = mask_log_odds.shape[0] > 0
     keep = np.float32(1.0) - mask_weight
-    tiny = np.finfo(np.float64).tiny
     half = (segments * scale - 1) / 2.0
     offsets = np.empty(segments * scale, dtype=np.float32)
     for i in range(segments * scale):
@@ -314,18 +339,21 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
     bin_count = hist_f.shape[1]
     last_pixel = width * height - 1
     local = samples.shape[0] > 0
+    direct = scale == 1 and not use_masks and not local
     # A window never holds a line twice: at most the whole contour.
     reach = max(min(window, (lines - chunk) // 2), 0)
     for n in numba.prange(count):
         seg_f = np.empty(segments, dtype=np.float32)
-        log_ratio = np.empty(bin_count, dtype=np.float32)
         # log(p_f / (1 - p_f)) with p_f = f / (f + b) per colour bin, clipped; 0 for a
         # colour neither histogram has seen (most of them: a histogram holds a few hundred).
-        # Local models compute theirs from the window's counts.
-        for b in range(0 if local else bin_count):
-            f, g = hist_f[n, b], hist_b[n, b]
-            log_ratio[b] = 0.0 if f == 0.0 and g == 0.0 else min(max(
-                math.log(f + tiny) - math.log(g + tiny), -max_log_ratio), max_log_ratio)
+        # Local models compute theirs from the window's counts. Segments of one pixel
+        # (``direct``) read their bin's probability instead, computed when a line first
+        # reads the bin: such lines read a few hundred bins, far fewer than the table has.
+        log_ratio = np.empty(bin_count, dtype=np.float32)
+        for b in range(0 if direct or local else bin_count):
+            log_ratio[b] = _log_ratio(hist_f[n, b], hist_b[n, b], max_log_ratio)
+        probability = np.empty(bin_count if direct else 1, dtype=np.float32)
+        known = np.zeros(bin_count if direct else 1, dtype=np.bool_)
         # With local models: the window's pixel counts per bin, and its log-odds computed
         # when first read (stamped with the chunk they belong to).
         local_bins = bin_count if local else 1
@@ -353,21 +381,25 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
             start_u = np.float32(centres[n, k, 0] + 0.5)
             start_v = np.float32(centres[n, k, 1] + 0.5)
             step_u, step_v = np.float32(normals[n, k, 0]), np.float32(normals[n, k, 1])
-            for s in range(segments):
+            if direct:      # one pixel a segment: its bin's probability, from the table
+                for s in range(segments):
+                    _, _, bin_ = _line_pixel(bins, width, last_pixel, start_u, start_v,
+                                             step_u, step_v, offsets[s])
+                    if not known[bin_]:
+                        probability[bin_] = _sigmoid(np.float32(_log_ratio(
+                            hist_f[n, bin_], hist_b[n, bin_], max_log_ratio)))
+                        known[bin_] = True
+                    seg_f[s] = probability[bin_]
+            for s in range(0 if direct else segments):
                 total = np.float32(0.0)
                 for i in range(s * scale, (s + 1) * scale):
-                    # A valid line lies on the image (>= -0.5 before the shift, truncation
-                    # rounds); the guard only keeps a float32 rounding at the last pixel in.
-                    col = int(start_u + step_u * offsets[i])
-                    row = int(start_v + step_v * offsets[i])
-                    bin_ = bins[min(row * width + col, last_pixel)]
+                    col, row, bin_ = _line_pixel(bins, width, last_pixel, start_u, start_v,
+                                                 step_u, step_v, offsets[i])
                     if local:
                         if stamp[bin_] != k // chunk:
                             f = (counts[0, bin_] + prior_pixels * hist_f[n, bin_]) * inverse_f
                             g = (counts[1, bin_] + prior_pixels * hist_b[n, bin_]) * inverse_b
-                            local_ratio[bin_] = 0.0 if f == 0.0 and g == 0.0 else min(max(
-                                math.log(f + tiny) - math.log(g + tiny), -max_log_ratio),
-                                max_log_ratio)
+                            local_ratio[bin_] = _log_ratio(f, g, max_log_ratio)
                             stamp[bin_] = k // chunk
                         value = local_ratio[bin_]
                     else:
@@ -376,8 +408,7 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
                         value = keep * value + mask_weight * _mask_log_odds(
                             mask_log_odds, mask_squares, n, col, row, mask_outside)
                     total += value
-                total = min(max(total, np.float32(-50.0)), np.float32(50.0))
-                seg_f[s] = np.float32(1.0) / (np.float32(1.0) + np.exp(-total))
+                seg_f[s] = _sigmoid(total)
             # p(contour at d) ~ prod_j (h_b[j] + seg_f[d + j] * h_diff[j]): each factor lies
             # in [h_b, h_f], bounded away from 0, so the product needs no logarithms.
             norm = 0.0
