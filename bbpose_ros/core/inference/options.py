@@ -100,8 +100,9 @@ class PipelineOptions:
     refine_prior_mm: float = _setting(
         0.0, "The same for the start's translation, millimetres; 0: none.", 0.0, 1000.0)
     refine_threads: int = _setting(
-        0, "Threads the refinement's per-line loops run on, split by pose; 0: one per core.",
-        0, 256)
+        1, "Threads the refinement's per-line loops run on, split by pose; 0: one per core. "
+        "A frame's few poses gain less from a parallel launch than it costs, and in stream "
+        'mode the tracks and the full pipeline each refine on a core of their own.', 0, 256)
     refine_occlusions: bool = _setting(
         True, "The poses of a frame hide each other's contour lines where one is nearer the "
         'camera (the image shows the occluder there).')
