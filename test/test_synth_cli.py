@@ -20,6 +20,7 @@ import json
 import numpy as np
 import pytest
 
+from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.cli import synth
 from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.bop import BopDataset
@@ -88,7 +89,25 @@ def test_table_scenes_make_a_dataset_that_eval_scores(egl, tmp_path, lmo_root, c
     assert scored['objects']['duck']['add_s_recall'] > 0.5
 
 
+def test_a_camera_path_makes_a_camera_rate_bag(egl, tmp_path, lmo_root):
+    out = tmp_path / 'path'
+    args = parse('--dataset', str(lmo_root), '--out', str(out), '--count', '3',
+                 '--scene-style', 'table', '--objects', 'duck,glue', '--camera-path',
+                 '--orbit-speed', '30')
+    assert args.func(args) == 0
+    assert json.loads((out / 'synth_info.json').read_text())['camera_path'] == {
+        'rate_hz': 30.0, 'orbit_deg_per_s': 30.0, 'bob_m': 0.02}
+    assert main(['make-bag', '--dataset', str(out), '--split', 'train_synth', '--rate', '30',
+                 '--out', str(tmp_path / 'bag'), '--start-stamp', '5']) == 0
+    frames = read_bag_frames(tmp_path / 'bag')
+    assert np.allclose(np.diff([f.stamp_ns for f in frames]), 1e9 / 30, atol=1)
+    assert all(f.ground_truth for f in frames)
+    # One scene: the first frame's objects, seen from a camera that moved.
+    assert not np.array_equal(frames[0].image_rgb, frames[2].image_rgb)
+
+
 @pytest.mark.parametrize('argv, message', [
+    (['--count', '1', '--camera-path'], '--camera-path needs --scene-style table'),
     (['--count', '0'], '--count'),
     (['--count', '1', '--objects', 'ape,teapot'], 'teapot'),
     (['--count', '1', '--seed', '-3'], '--seed'),

@@ -28,11 +28,12 @@ from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render.reference import render_depth
+from bbpose_ros.core.synth.camera_path import orbit_path
 from bbpose_ros.core.synth.effects import color_response
 from bbpose_ros.core.synth.stable_poses import compute_stable_poses, resting_height
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_crops import TableCrops
-from bbpose_ros.core.synth.table_scenes import polygons_overlap, TableScenes
+from bbpose_ros.core.synth.table_scenes import look_at, polygons_overlap, TableScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
@@ -303,3 +304,44 @@ def test_bad_config_is_refused(lmo_models):
         replace(CONFIG, camera_elevation_range_deg=(10.0, 95.0))
     with pytest.raises(InputError, match='both targets and distractors'):
         TableScenes({'ape': lmo_models['ape']}, CAMERA, 0, CONFIG, {'ape': lmo_models['ape']})
+
+
+def test_a_camera_path_sees_one_scene_from_moving_poses(table, rendered):
+    samples = [table.sample_with_layout(0, pose)
+               for pose in orbit_path(table.camera_pose(0), 4, 5.0, 20.0, bob_m=0.02)]
+    # At t = 0 the path is the sample's own camera: the very same image.
+    assert np.array_equal(samples[0][0].image_rgb, rendered[0][0].image_rgb)
+    assert not np.array_equal(samples[3][0].image_rgb, samples[0][0].image_rgb)
+    first, first_layout = samples[0]
+    for sample, layout in samples[1:]:
+        assert [m.key for m in layout.meshes] == [m.key for m in first_layout.meshes]
+        # The objects stay where they were on the table: model-to-world is the same.
+        theirs = {i.object_name: i for i in first.instances}
+        assert {i.object_name for i in sample.instances} & set(theirs)
+        for mine in sample.instances:
+            if mine.object_name not in theirs:
+                continue
+            world = [np.linalg.inv(pose) for pose in (layout.world_to_camera,
+                                                      first_layout.world_to_camera)]
+            other = theirs[mine.object_name]
+            np.testing.assert_allclose(world[0][:3, :3] @ mine.rotation,
+                                       world[1][:3, :3] @ other.rotation, atol=1e-9)
+            np.testing.assert_allclose(world[0][:3, :3] @ mine.translation + world[0][:3, 3],
+                                       world[1][:3, :3] @ other.translation + world[1][:3, 3],
+                                       atol=1e-9)
+
+
+def test_an_orbit_turns_about_the_point_looked_at():
+    start = look_at(np.array([0.3, 0.0, 0.5]), np.array([0.05, 0.02, 0.0]), 0.2)
+    poses = orbit_path(start, 31, 30.0, 30.0)
+    for pose in poses:
+        # The point looked at on the table stays on the optical axis, at the same depth.
+        target = pose[:3, :3] @ np.array([0.05, 0.02, 0.0]) + pose[:3, 3]
+        np.testing.assert_allclose(target[:2], 0.0, atol=1e-9)
+        assert target[2] == pytest.approx(np.linalg.norm([0.25, -0.02, 0.5]))
+    centres = [-pose[:3, :3].T @ pose[:3, 3] for pose in poses]
+    turned = np.degrees(np.arctan2(centres[-1][1] - 0.02, centres[-1][0] - 0.05)
+                        - np.arctan2(centres[0][1] - 0.02, centres[0][0] - 0.05))
+    assert turned == pytest.approx(30.0)        # 1 s at 30 deg/s
+    with pytest.raises(InputError, match='looking down'):
+        orbit_path(look_at(np.array([0.3, 0.0, -0.5]), np.zeros(3), 0.0), 2, 30.0, 10.0)

@@ -39,6 +39,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--scene', type=int, action='append', default=None,
                         help='scene id (repeatable; default: all scenes)')
     add_frames_argument(parser)
+    parser.add_argument('--split', default='test',
+                        help="the dataset's split folder, e.g. train_synth for `bbpose synth` "
+                             'output (default %(default)s)')
     parser.add_argument('--rate', type=float, default=10.0,
                         help='frames per second of the stamps (default %(default)s)')
     parser.add_argument('--start-stamp', type=float, default=None,
@@ -66,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jpeg_quality is not None and not args.compressed:
         raise InputError('--jpeg-quality is for --compressed bags')
     quality = DEFAULT_JPEG_QUALITY if args.jpeg_quality is None else args.jpeg_quality
-    frames = BopDataset(args.dataset).frames(args.scene)[:args.max_frames]
+    frames = BopDataset(args.dataset, args.split).frames(args.scene)[:args.max_frames]
     start = time.time() if args.start_stamp is None else args.start_stamp
     count = write_bop_bag(frames, args.out, rate_hz=args.rate,
                           start_stamp_ns=int(round(start * 1e9)), frame_id=args.frame_id,

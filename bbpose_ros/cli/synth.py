@@ -19,8 +19,10 @@ Output (see ``bbpose_ros.core.synth.export``): ``camera.json``, ``train_synth/00
 with images, visible masks and ground truth, ``models/`` (a copy of the dataset's: meshes,
 models_info.json, the names table), ``previews/`` with boxes drawn, and ``synth_info.json``
 (seed, objects, settings): a BOP dataset of its own, which ``bbpose eval --split
-train_synth`` scores. The folder appears only when complete: it is written under a
-temporary name next to it and renamed at the end.
+train_synth`` scores. With ``--camera-path`` the images are the frames of one table scene
+seen by a moving camera (``core.synth.camera_path``), for a bag (``make-bag --split``).
+The folder appears only when complete: it is written under a temporary name next to it
+and renamed at the end.
 """
 
 import argparse
@@ -37,6 +39,7 @@ from bbpose_ros.core.data.models import load_bop_models, names_source, resolve_o
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
+from bbpose_ros.core.synth.camera_path import orbit_path
 from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
     write_rgb_png
 from bbpose_ros.core.synth.table_config import TableConfig
@@ -63,6 +66,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     add_inplane_argument(parser)
     parser.add_argument('--previews', type=int, default=8,
                         help='number of preview images with boxes drawn (default 8)')
+    path = parser.add_argument_group(
+        'camera path (with --scene-style table): one scene seen by a moving camera, the '
+        '--count images its frames at --rate, for `make-bag --split train_synth --rate`')
+    path.add_argument('--camera-path', action='store_true',
+                      help="render the seed's first table scene from a camera circling what "
+                           'it looks at, frame by frame')
+    path.add_argument('--rate', type=float, default=30.0,
+                      help='frames per second of the path (default %(default)s)')
+    path.add_argument('--orbit-speed', type=float, default=20.0,
+                      help='degrees per second the camera circles (default %(default)s)')
+    path.add_argument('--bob', type=float, default=0.02,
+                      help='metres the camera moves up and down, at 0.5 Hz (default '
+                           '%(default)s)')
     parser.set_defaults(func=run)
     return parser
 
@@ -86,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     targets = resolve_object_names(requested, models, names_source(args.dataset))
     distractors = {name: model for name, model in models.items() if name not in targets}
     target_models = {name: models[name] for name in targets}
+    if args.camera_path and args.scene_style != 'table':
+        raise InputError('--camera-path needs --scene-style table')
     if args.scene_style == 'table':
         config = with_inplane_range(TableConfig(), args)
         scenes = TableScenes(target_models, camera, args.seed, config, distractors)
@@ -110,8 +128,13 @@ def _write(scenes, models, root, args, targets, distractors, config):
     writer = BopSceneWriter(root, scenes.camera,
                             {name: model.obj_id for name, model in models.items()})
     (root / 'previews').mkdir()
+    path = None
+    if args.camera_path:
+        path = orbit_path(scenes.camera_pose(0), args.count, args.rate, args.orbit_speed,
+                          args.bob)
     for index in tqdm(range(args.count), desc='synth', unit='img'):
-        sample = scenes.sample(index)
+        sample = scenes.sample(index) if path is None else \
+            scenes.sample_with_layout(0, path[index])[0]
         writer.add(index, sample)
         if index < args.previews:
             write_rgb_png(root / 'previews' / f'{index:06d}.png', draw_preview(sample))
@@ -119,4 +142,6 @@ def _write(scenes, models, root, args, targets, distractors, config):
     write_json(root / 'synth_info.json', {
         'seed': args.seed, 'count': args.count, 'scene_style': args.scene_style,
         'objects': targets,
-        'distractor_objects': sorted(distractors), 'config': asdict(config)})
+        'distractor_objects': sorted(distractors), 'config': asdict(config),
+        'camera_path': None if path is None else {
+            'rate_hz': args.rate, 'orbit_deg_per_s': args.orbit_speed, 'bob_m': args.bob}})

@@ -195,15 +195,21 @@ class TableScenes:
         """Render sample number ``index`` (a non-negative int) as a SyntheticSample."""
         return self.sample_with_layout(index)[0]
 
-    def sample_with_layout(self, index: int) -> tuple[SyntheticSample, TableLayout]:
-        """Render sample ``index``; return it and its ``TableLayout``."""
-        if int(index) != index or index < 0:
-            raise InputError(f'sample index must be a non-negative integer, got {index}')
+    def sample_with_layout(self, index: int, world_to_camera: np.ndarray | None = None
+                           ) -> tuple[SyntheticSample, TableLayout]:
+        """
+        Render sample ``index``; return it and its ``TableLayout``.
+
+        ``world_to_camera``: a (4, 4) camera pose (table frame, metres) to see the scene
+        from instead of the sample's own (``camera_pose``): the same table, objects, lights,
+        textures and camera effects seen from elsewhere, e.g. along a ``camera_path``.
+        """
         config = self.config
-        rng = np.random.default_rng([self.seed, 3, int(index)])
+        rng = self._rng(index)
         radius = rng.uniform(*config.cluster_radius_range)
         placed = self._layout(rng, radius)
-        world_to_camera = self._camera_pose(rng, radius)
+        drawn = self._camera_pose(rng, radius)
+        world_to_camera = drawn if world_to_camera is None else np.asarray(world_to_camera)
         rotation_wc, translation_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
         draws, kept = [], []
         for mesh in placed:
@@ -221,7 +227,7 @@ class TableScenes:
                                       for items in (draws, kept, materials))
             targets = list(range(len(targets)))
         lights = self._lights(rng, world_to_camera, radius)
-        planes = self._planes(rng, world_to_camera, radius)
+        planes = self._planes(rng, world_to_camera, radius, drawn)
         rendered = self.renderer.render_lit(draws, lights, materials, planes, targets)
         image = random_background(rng, self.camera.height, self.camera.width,
                                   self.backgrounds)
@@ -231,6 +237,19 @@ class TableScenes:
         instances = visible_instances(rendered, draws, targets, self.camera, self.hulls)
         return (SyntheticSample(image, self.camera, instances),
                 TableLayout(tuple(kept), world_to_camera, tuple(draws)))
+
+    def camera_pose(self, index: int) -> np.ndarray:
+        """Return the (4, 4) world-to-camera pose sample ``index`` is seen from (metres)."""
+        rng = self._rng(index)
+        radius = rng.uniform(*self.config.cluster_radius_range)
+        self._layout(rng, radius)
+        return self._camera_pose(rng, radius)
+
+    def _rng(self, index):
+        """Return the random stream of sample ``index`` (a non-negative int)."""
+        if int(index) != index or index < 0:
+            raise InputError(f'sample index must be a non-negative integer, got {index}')
+        return np.random.default_rng([self.seed, 3, int(index)])
 
     def _layout(self, rng, radius):
         """
@@ -314,8 +333,12 @@ class TableScenes:
         return SceneLights(tuple(lights), tuple(ambient), tuple(center), radius + 0.3,
                            config.shadows)
 
-    def _planes(self, rng, world_to_camera, radius):
-        """Make the table, and maybe a wall behind the cluster, in the camera frame."""
+    def _planes(self, rng, world_to_camera, radius, drawn):
+        """
+        Make the table, and maybe a wall, in the camera frame of ``world_to_camera``.
+
+        The wall stands behind the cluster as seen from the sample's ``drawn`` camera.
+        """
         config = self.config
         rotation_wc = world_to_camera[:3, :3]
         table_rotation = rotation_wc @ yaw_rotation(rng.uniform(0.0, 2.0 * np.pi))
@@ -327,7 +350,7 @@ class TableScenes:
                                 self._material(rng))]
         if rng.random() < config.wall_probability:
             # Behind the cluster as the camera sees it: opposite the camera, +-45 deg.
-            camera_position = -rotation_wc.T @ world_to_camera[:3, 3]
+            camera_position = -drawn[:3, :3].T @ drawn[:3, 3]
             away = np.arctan2(-camera_position[1], -camera_position[0]) + \
                 rng.uniform(-np.pi / 4, np.pi / 4)
             normal = -np.array([np.cos(away), np.sin(away), 0.0])    # towards the cluster
