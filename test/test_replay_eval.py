@@ -18,6 +18,7 @@ import json
 import math
 import subprocess
 import sys
+import time
 
 import cv2
 import numpy as np
@@ -30,6 +31,7 @@ from vision_msgs.msg import Detection3DArray
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.cli.replay_eval import unscored_poses
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.eval.paired import read_instances
 from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
@@ -76,6 +78,14 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
             mine, theirs = report['objects'][name][key], values[key]
             assert mine == theirs or (math.isnan(theirs) and mine is None), (name, key)
 
+    # One record per scored instance beside the report, for `bbpose compare`.
+    records = read_instances(out)
+    assert len(records) == sum(values['n'] for values in report['objects'].values())
+    for name, values in report['objects'].items():
+        passed = [r['add_s'] for r in records.values() if r['object'] == name]
+        assert len(passed) == values['n']
+        assert not passed or sum(passed) / len(passed) == pytest.approx(values['add_s_recall'])
+
     with Reader(out.parent / 'report_results_bag') as bag:
         recorded = {c.topic: c.msgtype for c in bag.connections}
         poses = sum(1 for c, _, _ in bag.messages() if c.topic.endswith('/pose'))
@@ -96,6 +106,27 @@ def test_replay_eval_answers_every_frame_and_scores_like_eval(lmo, lmo_root, lmo
     assert f'video of {FRAMES} frames' in result.stdout
     assert {p.name for p in (tmp_path / 'plots').iterdir()} >= {
         'recall_curves.png', 'objects.png', 'overlay_0000.png'}
+
+
+def test_a_paced_replay_streams_at_the_bags_rate(lmo, lmo_root, tmp_path):
+    use_private_domain(offset=4)
+    weights = weight_files(tmp_path)
+    # 4 Hz: slower than the node, which answers every frame as it comes.
+    write_bop_bag(lmo.frames()[:FRAMES], tmp_path / 'bag', rate_hz=4.0,
+                  start_stamp_ns=10 ** 9, progress=False)
+    params = write_params(tmp_path / 'params.yaml', lmo_root, weights)
+    out = tmp_path / 'paced.json'
+    started = time.monotonic()
+    result = subprocess.run(
+        [sys.executable, '-m', 'bbpose_ros.cli.main', 'replay-eval', '--bag', tmp_path / 'bag',
+         '--json', out, '--params', params, '--paced'],
+        capture_output=True, text=True, timeout=300, cwd=REPO_ROOT)
+    assert result.returncode == 0, result.stderr
+    assert time.monotonic() - started >= (FRAMES - 1) / 4.0
+    report = json.loads(out.read_text())
+    assert report['config']['paced'] is True
+    assert report['frames'] == {'sent': FRAMES, 'answered': FRAMES}
+    assert len(read_instances(out)) == sum(v['n'] for v in report['objects'].values())
 
 
 def test_objects_without_ground_truth_report_what_was_published():

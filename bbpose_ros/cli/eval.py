@@ -31,7 +31,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
 from bbpose_ros.core.eval.evaluation import score_frames
-from bbpose_ros.core.eval.paired import instances_path
+from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
@@ -247,11 +247,9 @@ def run(args: argparse.Namespace) -> int:
               '(v30: >= 0.3)')
         print(format_detection_report(detection))
     if args.json is not None:
-        records = [score.record() for object_scores in scores.values()
-                   for score in object_scores]
-        write_json_atomic(instances_path(args.json), records)
+        records = write_instances(args.json, scores)
         write_json_atomic(args.json, report)
-        print(f'report written to {args.json} (instances: {instances_path(args.json)})')
+        print(f'report written to {args.json} (instances: {records})')
     if args.plots is not None:
         write_plots(args.plots, scores, report['objects'], report.get('sweep'),
                     report['confidence'])

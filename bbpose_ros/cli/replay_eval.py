@@ -15,10 +15,11 @@
 """
 ``bbpose replay-eval``: replay a bag through ``bbpose_node`` and score what it publishes.
 
-The node runs as a child process; the bag is played in lockstep (see ``graph.replay``), the
-node's outputs are recorded into a results bag beside the JSON, and its poses (those of the
-PoseStamped topics, and separately those of ``~/detections``) are scored against the bag's
-ground truth by ``core.eval.recorded_poses`` with the scoring code of ``bbpose eval``.
+The node runs as a child process; the bag is played in lockstep or, with ``--paced``, at
+its recorded rate (see ``graph.replay``); the node's outputs are recorded into a results bag
+beside the JSON, and its poses (those of the PoseStamped topics, and separately those of
+``~/detections``) are scored against the bag's ground truth by ``core.eval.recorded_poses``
+with the scoring code of ``bbpose eval``, one instance record each beside the report.
 ``--video`` writes each frame's estimates beside its ground truth as an .mp4. A bag of
 compressed images (``make-bag --compressed``) is played to a node started with
 ``image_transport:=compressed`` (``with_transport``).
@@ -42,12 +43,14 @@ from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.bags.reader import bag_image_source, BagFrame, read_bag_frames
 from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
-from bbpose_ros.cli.graph.replay import replay_lockstep, use_large_image_profile
+from bbpose_ros.cli.graph.replay import replay_lockstep, replay_paced
+from bbpose_ros.cli.graph.replay import use_large_image_profile
 from bbpose_ros.core import viz
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
+from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
 from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
@@ -67,7 +70,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'images: the node gets the image_transport to match) into it (each frame '
                     'after the previous one is answered), record its outputs into a results '
                     'bag beside --json, and score its poses against the ground truth of the bag '
-                    'like bbpose eval (same table and JSON keys, plus frames sent/answered '
+                    'like bbpose eval (same table and JSON keys, instance records beside it for '
+                    'bbpose compare, plus frames sent/answered '
                     'and timing_ms.end_to_end: image published -> pose received, '
                     'timing_ms.answer: image published -> MarkerArray received).')
     parser.add_argument('--bag', type=Path, required=True, help='bag with ground truth')
@@ -86,6 +90,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--answer-timeout', type=float, default=30.0,
                         help='seconds to wait for the answer to each frame '
                              '(default %(default)s)')
+    parser.add_argument('--paced', action='store_true',
+                        help="play each message at its recorded time (the bag's rate), as a "
+                             'camera streams, instead of each frame after the previous '
+                             'answer: frames the node drops are scored as missed')
     parser.add_argument('--compare-tracking', action='store_true',
                         help='replay a second time with the node parameter tracking flipped '
                              "and report both runs' means and latencies under 'tracking'")
@@ -157,9 +165,10 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
         player = BagPlayer(node, args.bag)
         recorder = Recorder(node, objects)
         with tqdm(total=frame_count, desc='replaying', unit='frame') as bar:
-            recording = replay_lockstep(player, recorder, process, image_topic=image_topic,
-                                        answer_timeout_s=args.answer_timeout,
-                                        progress=lambda sent: bar.update(sent - bar.n))
+            replay = replay_paced if args.paced else replay_lockstep
+            recording = replay(player, recorder, process, image_topic=image_topic,
+                               answer_timeout_s=args.answer_timeout,
+                               progress=lambda sent: bar.update(sent - bar.n))
     finally:
         code = process.stop()
         node.destroy_node()
@@ -210,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
             for run_tracking, run in ((tracking, report), (not tracking, other))}
     report['config'] = {'bag': str(args.bag), 'params': str(args.params),
                         'param_overrides': list(args.param), 'image_transport': transport,
+                        'paced': args.paced,
                         'results_bag': str(bag_path)}
     print(format_report(report))
     for name, count in unscored_poses(recording, report['objects']).items():
@@ -226,8 +236,9 @@ def run(args: argparse.Namespace) -> int:
               f'{mean["cm5deg5"]:.3f}, answer latency median '
               f'{answer.get("median_ms", float("nan")):.1f} ms, p95 '
               f'{answer.get("p95_ms", float("nan")):.1f} ms')
+    records = write_instances(args.json, scores)
     write_json_atomic(args.json, report)
-    print(f'report written to {args.json}, node outputs to {bag_path}')
+    print(f'report written to {args.json} (instances: {records}), node outputs to {bag_path}')
     if args.plots is not None:
         write_plots(args.plots, frames, recording, models, scores, report['objects'])
         print(f'plots written to {args.plots}')

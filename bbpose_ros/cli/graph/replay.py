@@ -15,13 +15,16 @@
 """
 Replay a bag through a running ``bbpose_node`` and record what it answers.
 
-Frames are played in lockstep: each image (with the messages that follow it in the bag) is
-published once the node has answered the previous one, so a node slower than the bag's rate
-still answers every frame. A frame counts as answered when its MarkerArray arrives (the node
+Frames are played in lockstep (``replay_lockstep``): each image (with the messages that
+follow it in the bag) is published once the node has answered the previous one, so a node
+slower than the bag's rate still answers every frame; or paced (``replay_paced``): each
+message at its recorded time, as a camera streams, the node dropping what it cannot keep up
+with. A frame counts as answered when its MarkerArray arrives (the node
 publishes one per processed frame, after the frame's poses).
 """
 
 from collections.abc import Callable, Iterable, MutableMapping, Sequence
+import math
 import os
 from pathlib import Path
 import signal
@@ -131,15 +134,22 @@ class Recorder:
                                      raw=True)
 
     def spin_until(self, done: Callable[[], bool], timeout_s: float,
-                   process: NodeProcess | None = None) -> bool:
-        """Spin until ``done()`` is true; returns False on timeout or raises if process died."""
+                   process: NodeProcess | None = None, latest: float | None = None) -> bool:
+        """
+        Spin until ``done()`` is true; returns False on timeout or raises if process died.
+
+        ``latest``: a ``time.monotonic()`` by which ``done()`` is expected true, so that
+        no wait for messages outlasts it (a paced replay's next message).
+        """
         deadline = time.monotonic() + timeout_s
         while not done():
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > deadline:
                 return False
             if process is not None:
                 process.check_alive()
-            self.executor.spin_once(timeout_sec=POLL_S)
+            wait = POLL_S if latest is None else min(POLL_S, max(latest - now, 0.0))
+            self.executor.spin_once(timeout_sec=wait)
         return True
 
     def connected(self, publishers: Iterable[Publisher]) -> bool:
@@ -212,6 +222,42 @@ def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
                 progress(len(recording.published_s))
         player.publish(topic, raw)
     _wait_answer(recorder, previous, answer_timeout_s, process)
+    answered = len(recording.answered_s)
+    recorder.spin_until(lambda: recording.counts.get('answered', -1) >= answered,
+                        DIAGNOSTICS_TIMEOUT_S, process)
+    return recording
+
+
+def replay_paced(player: BagPlayer, recorder: Recorder, process: NodeProcess,
+                 image_topic: str = topics.IMAGE_TOPIC, start_timeout_s: float = 120.0,
+                 answer_timeout_s: float = 30.0,
+                 progress: Callable[[int], object] | None = None) -> Recording:
+    """
+    Play every message of the bag at its recorded time, as the camera sent it.
+
+    No frame waits for an answer: a node slower than the bag's rate drops frames (they stay
+    unanswered, as a robot's camera stream would find them). After the last frame, waits up
+    to ``answer_timeout_s`` for its answer; arguments otherwise as ``replay_lockstep``.
+    """
+    recording = recorder.recording
+    inputs = [publisher for topic, publisher in player.publishers.items()
+              if topic in (image_topic, topics.CAMERA_INFO_TOPIC)]
+    if not recorder.spin_until(lambda: recorder.connected(inputs), start_timeout_s, process):
+        raise InputError(f'{NODE_NAME} did not connect within {start_timeout_s} s')
+    first = start = last = None
+    for topic, recorded_ns, raw in player.messages():
+        if first is None:
+            first, start = recorded_ns, time.monotonic()
+        due = start + (recorded_ns - first) * 1e-9
+        recorder.spin_until(lambda: time.monotonic() >= due, math.inf, process,
+                            latest=due)
+        if topic == image_topic:
+            last = stamp_to_ns(deserialize_message(raw, player.types[topic]).header.stamp)
+            recording.published_s[last] = time.perf_counter()
+            if progress is not None:
+                progress(len(recording.published_s))
+        player.publish(topic, raw)
+    _wait_answer(recorder, last, answer_timeout_s, process)
     answered = len(recording.answered_s)
     recorder.spin_until(lambda: recording.counts.get('answered', -1) >= answered,
                         DIAGNOSTICS_TIMEOUT_S, process)

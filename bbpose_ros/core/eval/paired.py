@@ -15,11 +15,11 @@
 """
 Paired comparison of two evaluations over the instances both saw.
 
-``bbpose eval --json R.json`` writes one record per counted instance beside its report
-(``instances_path``: R.instances.json, ``InstanceScore.record``). Two runs over the same
-frames pair by the instance's key, so a setting's effect is measured per instance: each
-figure's difference B - A with a bootstrap interval over the paired instances, much
-tighter than the two runs' own sampling spread.
+``bbpose eval --json R.json`` (and ``replay-eval``) write one record per counted instance
+beside the report (``write_instances``: R.instances.json, ``InstanceScore.record``). Two
+runs over the same frames pair by the instance's key, so a setting's effect is measured
+per instance: each figure's difference B - A with a bootstrap interval over the paired
+instances, much tighter than the two runs' own sampling spread.
 """
 
 from __future__ import annotations
@@ -28,11 +28,15 @@ from collections.abc import Mapping, Sequence
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.files import write_json_atomic
+
+if TYPE_CHECKING:       # the scoring (and the pipeline it imports) only for the type
+    from bbpose_ros.core.eval.evaluation import InstanceScore
 
 # Rates over all paired instances (a missed instance fails each).
 RATES = ('found', 'add_s', 'cm5deg5', 'proj5px')
@@ -44,6 +48,15 @@ def instances_path(report: Path | str) -> Path:
     """Return where the instance records of report R.json lie: R.instances.json."""
     report = Path(report)
     return report.with_name(f'{report.stem}.instances.json')
+
+
+def write_instances(report: Path | str,
+                    scores: Mapping[str, Sequence[InstanceScore]]) -> Path:
+    """Write the instance records of report R.json (``InstanceScore.record``); their path."""
+    path = instances_path(report)
+    write_json_atomic(path, [score.record() for object_scores in scores.values()
+                             for score in object_scores])
+    return path
 
 
 def read_instances(path: Path | str) -> dict[str, dict[str, Any]]:

@@ -23,7 +23,7 @@ eval`` scores (``evaluation.score_frame``). A frame is any ``GroundTruthFrame`` 
 """
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -115,14 +115,15 @@ def score_recording(frames: Sequence[GroundTruthFrame],
     Score the node's poses per frame; returns {object name: [InstanceScore]}.
 
     ``poses``: {stamp: [(object name, rotation, translation)]}, a Recording's ``poses`` or
-    ``detections``.
+    ``detections``. Each score's key is '<image stamp, ns>/<index in the frame's ground
+    truth>': two replays of one bag pair instance by instance (``bbpose compare``).
     """
     scores = {name: [] for name in models}
     for frame in frames:
         estimates = node_estimates(poses.get(frame.stamp_ns, []), models, frame.camera)
-        for score in score_frame(models, ground_truth_instances(frame, models), estimates,
-                                 frame.camera):
-            scores[score.object_name].append(score)
+        for k, score in enumerate(score_frame(models, ground_truth_instances(frame, models),
+                                              estimates, frame.camera)):
+            scores[score.object_name].append(replace(score, key=f'{frame.stamp_ns}/{k}'))
     return scores
 
 
