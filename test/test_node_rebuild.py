@@ -81,17 +81,18 @@ def served(lmo, lmo_root, tmp_path_factory):
     spinning.join(TIMEOUT_S)
 
 
-def answer(client, stamp_s):
-    """Publish the frame stamped ``stamp_s`` seconds; return its MarkerArray (None if none)."""
+def answer(client, stamp_ms):
+    """Publish the frame stamped ``stamp_ms`` milliseconds; return its MarkerArray (or None)."""
     image, info = client.pair
     for message in (image, info):
-        message.header.stamp.sec, message.header.stamp.nanosec = stamp_s, 0
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ms * 10 ** 6,
+                                                                        10 ** 9)
     client.image.publish(image)
     client.info.publish(info)
 
     def received():
         return next((m for m in client.received[MARKERS]
-                     if stamp_to_ns(m.markers[0].header.stamp) == stamp_s * 10 ** 9), None)
+                     if stamp_to_ns(m.markers[0].header.stamp) == stamp_ms * 10 ** 6), None)
     client.spin_until(lambda: received() is not None)
     return received()
 
@@ -119,17 +120,17 @@ def test_frames_are_answered_while_a_rebuild_runs(served, monkeypatch):
         return build(config, log)
 
     monkeypatch.setattr(node_module, 'build_node_pipeline', held_build)
-    assert reported(answer(client, 1000)) == {'ape'}     # score 0: always reported
+    assert reported(answer(client, 1_000_000)) == {'ape'}     # score 0: always reported
     assert set_parameter(client, 'objects', ['can'])      # answered before the build ends
     assert building.wait(TIMEOUT_S)
     # The rebuild is held: these frames go through the pipeline the node had.
-    for stamp_s in (1001, 1002):
-        markers = answer(client, stamp_s)
+    for stamp_ms in (1_001_000, 1_002_000):
+        markers = answer(client, stamp_ms)
         assert markers is not None and reported(markers) == {'ape'}
     assert node.config.objects == ('ape',)
     gate.set()
     assert client.spin_until(lambda: node.config.objects == ('can',))
-    assert reported(answer(client, 1003)) == {'can'}
+    assert reported(answer(client, 1_003_000)) == {'can'}
 
 
 def test_a_backward_stamp_jump_resets_the_tracks(served, monkeypatch):
@@ -139,26 +140,30 @@ def test_a_backward_stamp_jump_resets_the_tracks(served, monkeypatch):
     resets = []
     reset = tracker.reset
     monkeypatch.setattr(tracker, 'reset', lambda: resets.append(1) or reset())
-    for stamp_s in (2000, 2001):
-        assert answer(client, stamp_s) is not None
+    for stamp_ms in (2_000_000, 2_001_000):
+        assert answer(client, stamp_ms) is not None
     assert resets == []                                   # forward in time: no reset
-    assert answer(client, 1500) is not None               # a bag restarted
+    assert answer(client, 1_500_000) is not None               # a bag restarted
     assert resets == [1]
-    assert answer(client, 1501) is not None               # the new stream goes on
+    assert answer(client, 1_501_000) is not None               # the new stream goes on
     assert resets == [1]
 
 
 def test_stream_mode_job_ends_with_deactivate(served):
     node, client = served
+    assert set_parameter(client, 'tracking_redetect_every', 1)
     assert set_parameter(client, 'tracking_stream', True)
     assert client.spin_until(lambda: node.config.options.tracking_stream)
     tracker = node.pipeline.pipeline
     assert isinstance(tracker, PoseTracker)
-    assert answer(client, 3000) is not None     # answered by the tracks, handed on
+    # A first frame is detected in the frame; the next, 5 ms later by the stamps (a camera
+    # faster than the pipeline), is answered by the tracks and handed on.
+    assert answer(client, 3_000_000) is not None and not tracker.background_running
+    assert answer(client, 3_000_005) is not None
     assert tracker.background_running
     assert node.trigger_deactivate() == node_module.SUCCESS
     assert not tracker.background_running
     assert not [t for t in threading.enumerate() if t.name == 'bbpose_detection']
     assert node.trigger_activate() == node_module.SUCCESS
-    assert answer(client, 3001) is not None
+    assert answer(client, 3_001_000) is not None and answer(client, 3_001_005) is not None
     assert node.pipeline.pipeline is tracker and tracker.background_running

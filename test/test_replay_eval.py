@@ -29,7 +29,8 @@ from test_ros_support import REPO_ROOT, use_private_domain, weight_files, write_
 from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.cli.replay_eval import unscored_poses
+from bbpose_ros.cli.replay_eval import per_frame_in_lockstep, unscored_poses
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
 from bbpose_ros.core.eval.paired import read_instances
 from bbpose_ros.core.eval.recorded_poses import Recording
@@ -127,6 +128,14 @@ def test_a_paced_replay_streams_at_the_bags_rate(lmo, lmo_root, tmp_path):
     assert report['config']['paced'] is True
     assert report['frames'] == {'sent': FRAMES, 'answered': FRAMES}
     assert len(read_instances(out)) == sum(v['n'] for v in report['objects'].values())
+
+
+def test_lockstep_replays_run_the_node_per_frame():
+    assert per_frame_in_lockstep(['tracking:=true'], {'tracking_stream': True}) == [
+        'tracking:=true', 'tracking_stream:=false']
+    assert per_frame_in_lockstep([], {'tracking_stream': False}) == ['tracking_stream:=false']
+    with pytest.raises(InputError, match='needs --paced'):
+        per_frame_in_lockstep(['tracking_stream:=true'], {'tracking_stream': True})
 
 
 def test_objects_without_ground_truth_report_what_was_published():

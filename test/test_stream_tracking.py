@@ -91,41 +91,53 @@ def wait_for(condition, limit_s=WAIT_S):
         time.sleep(0.01)
 
 
-def run_until(tracker, image, camera, done, limit_s=WAIT_S):
-    """Answer frames until ``done(result)``; return the results, every frame's."""
+def run_until(tracker, image, camera, done, stamp=lambda: None, limit_s=WAIT_S):
+    """Answer frames (stamped ``stamp()``) until ``done(result)``; return every result."""
     results, start = [], time.monotonic()
     while time.monotonic() - start < limit_s:
-        results.append(tracker.estimate(image, camera))
+        results.append(tracker.estimate(image, camera, stamp()))
         if done(results[-1]):
             return results
         time.sleep(0.01)
     raise AssertionError('stream mode never got there')
 
 
+def names_of(poses):
+    """Return the sorted object names of poses or ground-truth instances."""
+    return sorted(p.object_name for p in poses)
+
+
 def test_stream_answers_every_frame_and_adopts_later(scene, lmo_models):
     frame, image, truths, _ = scene
     tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=3)
+    stamps = iter(np.arange(1.0, 100.0, 1.0 / 200.0))     # a camera faster than the pipeline
     try:
-        # The detector is held: every frame is answered, none waits for it.
+        # The first frame has nothing else to answer from: it is detected in the frame.
+        detector.gate.set()
+        first = tracker.estimate(image, frame.camera, next(stamps))
+        assert names_of(first.poses) == names_of(truths) and 'detector' in first.timings_ms
+        # The detector is held: every frame is answered by the tracks, none waits for it;
+        # the third hands its frame to the full pipeline beside them.
+        detector.gate.clear()
         for _ in range(5):
             start = time.perf_counter()
-            result = tracker.estimate(image, frame.camera)
+            result = tracker.estimate(image, frame.camera, next(stamps))
             assert time.perf_counter() - start < 1.0
-            assert result.poses == [] and 'detector' not in result.timings_ms
-        wait_for(lambda: detector.calls)
-        assert detector.calls == 1 and tracker.background_running
+            assert names_of(result.poses) == names_of(truths)
+            assert 'detector' not in result.timings_ms
+        wait_for(lambda: detector.calls == 2)
+        assert tracker.background_running
         detector.gate.set()
-        results = run_until(tracker, image, frame.camera, lambda r: r.poses)
+        results = run_until(tracker, image, frame.camera,
+                            lambda r: 'stream_job' in r.timings_ms, lambda: next(stamps))
         adopted = results[-1]
-        assert sorted(p.object_name for p in adopted.poses) == \
-            sorted(i.object_name for i in truths)
-        assert {'stream_job', 'stream_age', 'tracking'} <= set(adopted.timings_ms)
+        assert names_of(adopted.poses) == names_of(truths)
+        assert {'stream_age', 'tracking'} <= set(adopted.timings_ms)
         assert adopted.timings_ms['stream_age'] >= adopted.timings_ms['stream_job'] > 0.0
         # Later frames keep them by tracking; the full pipeline runs beside, one job at a time.
         for _ in range(8):
-            later = tracker.estimate(image, frame.camera)
-            assert sorted(p.object_name for p in later.poses) == \
-                sorted(i.object_name for i in truths)
+            later = tracker.estimate(image, frame.camera, next(stamps))
+            assert names_of(later.poses) == names_of(truths)
             assert 'detector' not in later.timings_ms
         assert detector.most_running == 1
     finally:
@@ -154,22 +166,46 @@ def test_stream_replaces_a_lost_track(scene, lmo_models):
         tracker.reset()
 
 
+def test_a_camera_slower_than_the_pipeline_detects_in_the_frame(scene, lmo_models):
+    frame, image, truths, _ = scene
+    tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=1000)
+    detector.gate.set()
+    try:
+        first = tracker.estimate(image, frame.camera, 1.0)
+        assert names_of(first.poses) == names_of(truths) and detector.calls == 1
+        name = truths[0].object_name
+        track = tracker.tracks[name]
+        tracker.tracks[name] = Track(replace(track.pose,
+                                             translation=track.pose.translation + 0.3))
+        # A frame a second, the stamps say: the lost track's frame is detected itself and
+        # answered with the object, not handed on.
+        found = tracker.estimate(image, frame.camera, 2.0)
+        assert detector.calls == 2 and 'detector' in found.timings_ms
+        assert name in {p.object_name for p in found.poses}
+        assert not tracker.background_running
+    finally:
+        tracker.reset()
+
+
 def test_reset_stops_the_background_job(scene, lmo_models):
     frame, image, _, _ = scene
-    tracker, detector = stream_tracker(scene, lmo_models)
-    tracker.estimate(image, frame.camera)
+    tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=1)
+    stamps = iter(np.arange(1.0, 100.0, 1.0 / 200.0))
+    detector.gate.set()
+    tracker.estimate(image, frame.camera, next(stamps))     # detected in the frame
+    detector.gate.clear()
+    tracker.estimate(image, frame.camera, next(stamps))     # handed on, held
     assert tracker.background_running
     threading.Timer(0.2, detector.gate.set).start()     # the job in hand ends soon
     tracker.reset()
     assert not tracker.background_running and tracker.tracks == {}
     assert not [t for t in threading.enumerate() if t.name == 'bbpose_detection']
-    # Its poses are dropped; the next frame starts a new job.
-    assert tracker.estimate(image, frame.camera).poses == []
-    assert tracker.background_running
+    # Its poses are dropped; after the reset a new stream starts: detected in the frame.
+    again = tracker.estimate(image, frame.camera, 0.5)
+    assert again.poses and 'detector' in again.timings_ms and not tracker.background_running
     tracker.close()
-    assert not tracker.background_running
-    tracker.estimate(image, frame.camera)       # closed: the tracks alone answer
-    assert not tracker.background_running
+    closed = tracker.estimate(image, frame.camera, 0.6)      # the tracks alone answer
+    assert 'detector' not in closed.timings_ms and not tracker.background_running
 
 
 def test_stream_needs_tracking():

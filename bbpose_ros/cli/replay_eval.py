@@ -30,6 +30,7 @@ from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 import sys
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -68,7 +69,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         'replay-eval', help='replay a bag through bbpose_node and score its poses',
         description='Start bbpose_node, play a bag made by make-bag (raw or --compressed '
                     'images: the node gets the image_transport to match) into it (each frame '
-                    'after the previous one is answered), record its outputs into a results '
+                    'after the previous one is answered, the node per frame: stream mode is '
+                    'for --paced), record its outputs into a results '
                     'bag beside --json, and score its poses against the ground truth of the bag '
                     'like bbpose eval (same table and JSON keys, instance records beside it for '
                     'bbpose compare, plus frames sent/answered '
@@ -149,6 +151,22 @@ def with_transport(overrides: Sequence[str], transport: str) -> list[str]:
     return list(overrides) + [f'image_transport:={transport}']
 
 
+def per_frame_in_lockstep(overrides: Sequence[str], values: Mapping[str, Any]) -> list[str]:
+    """
+    Return parameter ``overrides`` for a lock-step replay: stream mode off.
+
+    Stream mode answers a frame from the tracks before its detection ends; played in lock
+    step, each frame follows that answer at once, and the detections never catch up with
+    the frames (a camera's frames come at its rate: ``--paced``). ``values``: the node's
+    parameters with the overrides; one that asks for stream mode is an InputError.
+    """
+    if any(o.partition(':=')[0].strip() == 'tracking_stream' for o in overrides) and \
+            values['tracking_stream']:
+        raise InputError('--param tracking_stream:=true needs --paced: a lock-step replay '
+                         'sends each frame as soon as the previous one is answered')
+    return list(overrides) + ['tracking_stream:=false']
+
+
 def record(args: argparse.Namespace, objects: list[str], frame_count: int,
            overrides: list[str], image_topic: str = topics.IMAGE_TOPIC) -> Recording:
     """
@@ -201,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f'bag {args.bag} has no frames or a frame without camera_info')
     image_topic, transport = bag_image_source(args.bag)
     overrides = with_transport(args.param, transport)
+    if not args.paced:
+        overrides = per_frame_in_lockstep(overrides, values)
     recording = record(args, list(models), len(frames), overrides, image_topic)
     bag_path = results_bag_path(args.json)
     write_bag(bag_path, recording.messages, replace=True)
@@ -210,7 +230,8 @@ def run(args: argparse.Namespace) -> int:
     if args.compare_tracking:
         tracking = bool(values['tracking'])
         flipped = record(args, list(models), len(frames),
-                         overrides + [f'tracking:={str(not tracking).lower()}'], image_topic)
+                         overrides + [f'tracking:={str(not tracking).lower()}']
+                         + ([] if not tracking else ['tracking_stream:=false']), image_topic)
         other = recording_report(flipped, score_recording(frames, flipped.poses, models),
                                  score_recording(frames, flipped.detections, models))
         report['tracking'] = {

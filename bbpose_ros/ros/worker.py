@@ -34,6 +34,7 @@ from sensor_msgs.msg import CameraInfo
 
 from bbpose_ros.core.geometry.camera_info import CameraModel, Rectifier
 from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.node_pipeline import NodePipeline
@@ -118,7 +119,12 @@ class FrameWorker:
                     self._logger.info('tracks reset: the image stamps went back')
                 stream = frame.stream
                 image_rgb = self._rectifier(frame.image_rgb, camera)
-                result = pipeline.pipeline.estimate(image_rgb, camera.intrinsics)
+                if isinstance(pipeline.pipeline, PoseTracker):
+                    result = pipeline.pipeline.estimate(
+                        image_rgb, camera.intrinsics,
+                        stamp_s=stamp_to_ns(frame.header.stamp) * 1e-9)
+                else:
+                    result = pipeline.pipeline.estimate(image_rgb, camera.intrinsics)
                 self._publishers.publish(frame.header, image_rgb, camera.intrinsics,
                                          result.poses, pipeline)
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does

@@ -24,7 +24,8 @@ them (the newest only).
 
 The pipeline's detector and Q-Net (ONNX Runtime) and the refinement's numba kernels
 (``nogil``) release the GIL, so the job runs on the cores the tracks leave. Only this
-thread calls the PosePipeline; the tracker calls its PoseRefiner's ``refine_tracks``, which
+thread calls the PosePipeline while a job runs or a frame waits (``idle`` tells when it
+does not); the tracker calls its PoseRefiner's ``refine_tracks``, which
 keeps no state between calls (``refine_poses`` builds its own per call), and the parallel
 kernels are safe to launch from both threads (``line_kernels.parallel_launch``).
 """
@@ -91,12 +92,19 @@ class BackgroundDetection:
         self._thread: threading.Thread | None = None
         self._stopped = threading.Event()     # the current thread's
         self._closed = False
+        self._busy = False      # a job runs
 
     @property
     def waiting(self) -> bool:
         """Tell whether a handed frame waits for the job in hand to end."""
         with self._changed:
             return self._waiting is not None
+
+    @property
+    def idle(self) -> bool:
+        """Tell whether the pipeline is free to call: no job runs or waits, not closed."""
+        with self._changed:
+            return not self._busy and self._waiting is None and not self._closed
 
     @property
     def running(self) -> bool:
@@ -155,6 +163,7 @@ class BackgroundDetection:
                 if stopped.is_set():
                     return
                 (image_rgb, camera, handed_s), self._waiting = self._waiting, None
+                self._busy = True
             started_s = time.perf_counter()
             result = error = None
             try:
@@ -162,6 +171,7 @@ class BackgroundDetection:
             except Exception as err:  # noqa: B902 - handed to the tracker, which raises it
                 error = err
             with self._changed:
+                self._busy = False
                 if stopped.is_set():
                     return
                 self._finished = FinishedJob(result, error, handed_s, started_s,

@@ -40,6 +40,13 @@ frame's timings then carry the adopted job's ``stream_job`` (how long the full p
 ran) and ``stream_age`` (how old its poses are when adopted: from their frame's handing
 over to the adoption), milliseconds.
 
+A camera slower than the full pipeline leaves it the time to run in the frame: where the
+frame period (from the image stamps) exceeds ``STREAM_HEADROOM`` times the pipeline's run
+time, no frame is handed on; once no job runs, stream mode detects in the frame itself, as
+tracking mode does, and answers with the frame's own detections instead of poses carried
+over a large motion. So is a stream's first frame (no period known yet): a single image is
+answered with its poses.
+
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
 Only objects the refiner has a viewpoint model of are tracked.
@@ -48,6 +55,7 @@ Only objects the refiner has a viewpoint model of are tracked.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -71,6 +79,13 @@ if TYPE_CHECKING:
 TRACK_ITERATIONS = 3
 # How far a track's colour model moves towards each frame's (0..1).
 TRACK_COLOR_RATE = 0.2
+# Stream mode detects in the frame itself where the frame period exceeds the full
+# pipeline's run time this many times (a margin for the tracks' own refinement and jitter).
+STREAM_HEADROOM = 1.25
+# Weight of the newest frame period and pipeline run time in their running means (0..1).
+STREAM_SMOOTHING = 0.2
+# Stamp steps outside (0, this] seconds are not a frame period (a jump in the stream).
+MAX_FRAME_PERIOD_S = 5.0
 
 
 @dataclass
@@ -99,6 +114,9 @@ class PoseTracker:
         self._since_detection = 0
         self._background = BackgroundDetection(pipeline) \
             if pipeline.options.tracking_stream else None
+        self._last_stamp_s: float | None = None
+        self._frame_period_s: float | None = None     # running means, seconds
+        self._pipeline_s: float | None = None
 
     @property
     def options(self) -> PipelineOptions:
@@ -121,6 +139,7 @@ class PoseTracker:
             self._background.stop()
         self.tracks.clear()
         self._since_detection = 0
+        self._last_stamp_s = self._frame_period_s = None
 
     def close(self) -> None:
         """Reset and stop for good: later frames are answered by the tracks alone."""
@@ -128,15 +147,19 @@ class PoseTracker:
             self._background.close()
         self.reset()
 
-    def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics) -> FrameResult:
+    def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
+                 stamp_s: float | None = None) -> FrameResult:
         """
         Track, detect when the policy says so, and return the frame's poses.
 
+        ``stamp_s``: the image's capture time, seconds (its header stamp), from which
+        stream mode learns the camera's frame period; None: the time of this call.
         In stream mode ``image_rgb`` may be read by the background job after this returns:
         the caller must not write to it afterwards.
         """
         if self._background is not None:
-            return self._stream(image_rgb, camera)
+            return self._stream(image_rgb, camera,
+                                time.perf_counter() if stamp_s is None else stamp_s)
         timer = StageTimer()
         tracked = bool(self.tracks)
         lost = self._follow_tracks(image_rgb, camera)
@@ -153,14 +176,16 @@ class PoseTracker:
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
-    def _stream(self, image_rgb, camera):
-        """Stream mode: adopt the finished job's poses, track, hand the frame on if wanted."""
+    def _stream(self, image_rgb, camera, stamp_s):
+        """Stream mode: adopt the finished job's poses, track, detect (here or beside)."""
         timer = StageTimer()
+        self._frame_period_s = self._observe(self._frame_period_s, self._frame_step(stamp_s))
         untracked = []
         finished = self._background.take()
         if finished is not None:
             if finished.error is not None:
                 raise finished.error
+            self._pipeline_s = self._observe(self._pipeline_s, finished.run_ms * 1e-3)
             untracked = self._adopt(finished.result.poses)
             timer.timings_ms.update(stream_job=finished.run_ms,
                                     stream_age=(timer.start_s - finished.handed_s) * 1e3)
@@ -171,10 +196,43 @@ class PoseTracker:
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            self._background.hand(image_rgb, camera)
-            self._since_detection = 0
+            if not self._camera_leaves_time():
+                self._background.hand(image_rgb, camera)
+                self._since_detection = 0
+            elif self._background.idle:     # else the job in hand ends before long
+                result = self.pipeline.estimate(image_rgb, camera)
+                self._pipeline_s = self._observe(self._pipeline_s,
+                                                 result.timings_ms['total'] * 1e-3)
+                timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
+                                        if stage != 'total')
+                untracked = self._adopt(result.poses)
+                self._since_detection = 0
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
+
+    def _frame_step(self, stamp_s):
+        """Return the seconds since the previous frame's stamp, None across a jump."""
+        last, self._last_stamp_s = self._last_stamp_s, stamp_s
+        if last is None or not 0.0 < stamp_s - last <= MAX_FRAME_PERIOD_S:
+            return None
+        return stamp_s - last
+
+    @staticmethod
+    def _observe(mean, value):
+        """Return a running mean (None: none yet) moved towards ``value`` (None: kept)."""
+        if value is None:
+            return mean
+        return value if mean is None else mean + STREAM_SMOOTHING * (value - mean)
+
+    def _camera_leaves_time(self):
+        """
+        Tell whether the frame period holds the full pipeline with headroom (stream mode).
+
+        Before two stamps give a period (a stream's first frame, or the first after a jump)
+        it does: there is nothing to answer from but the frame itself.
+        """
+        return self._frame_period_s is None or self._pipeline_s is None or \
+            self._frame_period_s > STREAM_HEADROOM * self._pipeline_s
 
     def _follow_tracks(self, image_rgb, camera):
         """Refine every track from its last pose; drop the lost ones; tell if any was."""
