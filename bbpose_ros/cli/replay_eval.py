@@ -44,8 +44,7 @@ from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.bags.reader import bag_image_source, BagFrame, read_bag_frames
 from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
-from bbpose_ros.cli.graph.replay import replay_lockstep, replay_paced
-from bbpose_ros.cli.graph.replay import use_large_image_profile
+from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
 from bbpose_ros.core import viz
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
@@ -183,10 +182,10 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
         player = BagPlayer(node, args.bag)
         recorder = Recorder(node, objects)
         with tqdm(total=frame_count, desc='replaying', unit='frame') as bar:
-            replay = replay_paced if args.paced else replay_lockstep
-            recording = replay(player, recorder, process, image_topic=image_topic,
-                               answer_timeout_s=args.answer_timeout,
-                               progress=lambda sent: bar.update(sent - bar.n))
+            recording = replay_bag(player, recorder, process, args.paced,
+                                   image_topic=image_topic,
+                                   answer_timeout_s=args.answer_timeout,
+                                   progress=lambda sent: bar.update(sent - bar.n))
     finally:
         code = process.stop()
         node.destroy_node()

@@ -15,12 +15,12 @@
 """
 Replay a bag through a running ``bbpose_node`` and record what it answers.
 
-Frames are played in lockstep (``replay_lockstep``): each image (with the messages that
-follow it in the bag) is published once the node has answered the previous one, so a node
-slower than the bag's rate still answers every frame; or paced (``replay_paced``): each
-message at its recorded time, as a camera streams, the node dropping what it cannot keep up
-with. A frame counts as answered when its MarkerArray arrives (the node
-publishes one per processed frame, after the frame's poses).
+Frames are played in lockstep (``replay_bag``): each image (with the messages that follow
+it in the bag) is published once the node has answered the previous one, so a node slower
+than the bag's rate still answers every frame; or paced: each message at its recorded time,
+as a camera streams, the node dropping what it cannot keep up with. A frame counts as
+answered when its MarkerArray arrives (the node publishes one per processed frame, after
+the frame's poses).
 """
 
 from collections.abc import Callable, Iterable, MutableMapping, Sequence
@@ -195,49 +195,22 @@ class Recorder:
                 self.recording.counts = counts_from_status(status)
 
 
-def replay_lockstep(player: BagPlayer, recorder: Recorder, process: NodeProcess,
-                    image_topic: str = topics.IMAGE_TOPIC, start_timeout_s: float = 120.0,
-                    answer_timeout_s: float = 30.0,
-                    progress: Callable[[int], object] | None = None) -> Recording:
+def replay_bag(player: BagPlayer, recorder: Recorder, process: NodeProcess,
+               paced: bool = False, image_topic: str = topics.IMAGE_TOPIC,
+               start_timeout_s: float = 120.0, answer_timeout_s: float = 30.0,
+               progress: Callable[[int], object] | None = None) -> Recording:
     """
-    Play every message of the bag, each image after the node answered the previous one.
+    Play every message of the bag into the node; return the Recording.
 
-    Waits up to ``start_timeout_s`` for the node to connect and ``answer_timeout_s`` for
-    each answer (a frame left unanswered is counted, not retried); ``progress`` is called
-    with the number of images sent. ``image_topic`` holds the frames (sensor_msgs/Image, or
-    CompressedImage for a node with ``image_transport`` compressed). Returns the Recording.
-    """
-    recording = recorder.recording
-    inputs = [publisher for topic, publisher in player.publishers.items()
-              if topic in (image_topic, topics.CAMERA_INFO_TOPIC)]
-    if not recorder.spin_until(lambda: recorder.connected(inputs), start_timeout_s, process):
-        raise InputError(f'{NODE_NAME} did not connect within {start_timeout_s} s')
-    previous = None
-    for topic, _, raw in player.messages():
-        if topic == image_topic:
-            _wait_answer(recorder, previous, answer_timeout_s, process)
-            previous = stamp_to_ns(deserialize_message(raw, player.types[topic]).header.stamp)
-            recording.published_s[previous] = time.perf_counter()
-            if progress is not None:
-                progress(len(recording.published_s))
-        player.publish(topic, raw)
-    _wait_answer(recorder, previous, answer_timeout_s, process)
-    answered = len(recording.answered_s)
-    recorder.spin_until(lambda: recording.counts.get('answered', -1) >= answered,
-                        DIAGNOSTICS_TIMEOUT_S, process)
-    return recording
-
-
-def replay_paced(player: BagPlayer, recorder: Recorder, process: NodeProcess,
-                 image_topic: str = topics.IMAGE_TOPIC, start_timeout_s: float = 120.0,
-                 answer_timeout_s: float = 30.0,
-                 progress: Callable[[int], object] | None = None) -> Recording:
-    """
-    Play every message of the bag at its recorded time, as the camera sent it.
-
-    No frame waits for an answer: a node slower than the bag's rate drops frames (they stay
-    unanswered, as a robot's camera stream would find them). After the last frame, waits up
-    to ``answer_timeout_s`` for its answer; arguments otherwise as ``replay_lockstep``.
+    In lock step each image (with the messages that follow it in the bag) is published once
+    the node answered the previous one (a frame left unanswered within
+    ``answer_timeout_s`` is counted, not retried). ``paced``: each message at its recorded
+    time, as the camera sent it; no frame waits for an answer, and a node slower than the
+    bag's rate drops frames (they stay unanswered). Either way the last frame's answer is
+    waited for up to ``answer_timeout_s``. Waits up to ``start_timeout_s`` for the node to
+    connect; ``progress`` is called with the number of images sent. ``image_topic`` holds
+    the frames (sensor_msgs/Image, or CompressedImage for a node with ``image_transport``
+    compressed).
     """
     recording = recorder.recording
     inputs = [publisher for topic, publisher in player.publishers.items()
@@ -246,12 +219,15 @@ def replay_paced(player: BagPlayer, recorder: Recorder, process: NodeProcess,
         raise InputError(f'{NODE_NAME} did not connect within {start_timeout_s} s')
     first = start = last = None
     for topic, recorded_ns, raw in player.messages():
-        if first is None:
-            first, start = recorded_ns, time.monotonic()
-        due = start + (recorded_ns - first) * 1e-9
-        recorder.spin_until(lambda: time.monotonic() >= due, math.inf, process,
-                            latest=due)
+        if paced:
+            if first is None:
+                first, start = recorded_ns, time.monotonic()
+            due = start + (recorded_ns - first) * 1e-9
+            recorder.spin_until(lambda: time.monotonic() >= due, math.inf, process,
+                                latest=due)
         if topic == image_topic:
+            if not paced:
+                _wait_answer(recorder, last, answer_timeout_s, process)
             last = stamp_to_ns(deserialize_message(raw, player.types[topic]).header.stamp)
             recording.published_s[last] = time.perf_counter()
             if progress is not None:
