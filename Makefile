@@ -128,6 +128,34 @@ adapt-check: setup
 		$(ADAPT_OUT)/adapted_135.json,$(ADAPT_OUT)/adapted_24.json --objects \
 		--json docs/reports/adapt_compare.json
 
+# Stream mode against per-frame mode, each replay paced at the bag's rate
+# (docs/performance.md#stream-mode): a rendered 30 Hz camera path over a table scene, and
+# the dev frames at 5 Hz (about 6 camera frames apart); paired by `bbpose compare`.
+STREAM_OUT ?= $(OUT)/stream_check
+STREAM_MODE = --param tracking:=true --param tracking_stream:=true
+.PHONY: stream-check
+stream-check: setup
+	@rm -rf $(STREAM_OUT); mkdir -p $(STREAM_OUT)
+	$(BIN)/bbpose synth --dataset $(DATASET) --scene-style table --camera-path --count 300 \
+		--seed 5 --previews 4 --out $(STREAM_OUT)/path
+	$(BIN)/bbpose make-bag --dataset $(STREAM_OUT)/path --split train_synth --rate 30 \
+		--start-stamp 1000 --out $(STREAM_OUT)/path_bag
+	$(BIN)/bbpose make-bag --dataset $(DATASET) --rate 5 --start-stamp 1000 \
+		--out $(STREAM_OUT)/dev_bag
+	@set -e; export ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))}; \
+	for bag in path dev; do \
+		dataset=$$([ $$bag = path ] && echo $(abspath $(STREAM_OUT))/path || \
+			echo $(abspath $(DATASET))); \
+		$(BIN)/bbpose replay-eval --paced --bag $(STREAM_OUT)/$${bag}_bag \
+			--param dataset_dir:=$$dataset --json $(STREAM_OUT)/$${bag}_perframe.json; \
+		$(BIN)/bbpose replay-eval --paced --bag $(STREAM_OUT)/$${bag}_bag $(STREAM_MODE) \
+			--param dataset_dir:=$$dataset --json $(STREAM_OUT)/$${bag}_stream.json; \
+		cp $(STREAM_OUT)/$${bag}_perframe.json docs/reports/stream_$${bag}_perframe.json; \
+		cp $(STREAM_OUT)/$${bag}_stream.json docs/reports/stream_$${bag}_stream.json; \
+		$(BIN)/bbpose compare $(STREAM_OUT)/$${bag}_perframe.json \
+			$(STREAM_OUT)/$${bag}_stream.json --json docs/reports/stream_$${bag}_compare.json; \
+	done
+
 # Background photographs for training renders (`bbpose train render --backgrounds`):
 # Debian's wallpaper packages, unpacked outside the repository (once).
 CACHE ?= $(HOME)/.cache/bbpose

@@ -58,7 +58,12 @@ REPORT_COMMANDS = {
                             + ' '.join(f'--perturb-gt 0,{mm}' for mm in (0, 30, 60, 90, 120)),
     'bench': _BENCH,
     'bench_fp32': f'{_BENCH} --param inference_precision:=fp32',
-    'bench_graph': f'{_BENCH} --graph',
+    'bench_graph': f'{_BENCH} --graph --duration 120',
+    'bench_graph_stream': f'{_BENCH} --graph --duration 120 --param tracking:=true '
+                          '--param tracking_stream:=true',
+    # Paced replays, per-frame against stream mode (the Makefile's stream-check target).
+    **{f'stream_{bag}_{run}': 'make stream-check' for bag in ('path', 'dev')
+       for run in ('perframe', 'stream', 'compare')},
     # bbpose adapt's two-fold block protocol (the Makefile's adapt-check target).
     'adapt_compare': 'make adapt-check',
     'adapt_labels_135': 'make adapt-check',
@@ -245,5 +250,28 @@ TABLES = {
          Column('node RSS start / end (MB)', ('node.rss_start_mb', 'node.rss_end_mb'),
                 '{:.0f}'),
          Column('RSS growth (%)', ('node.rss_growth_percent',), '{:+.1f}')),
-        (('30 Hz for 60 s, one inference thread', 'bench_graph'),)),
+        (('30 Hz for 120 s, per frame', 'bench_graph'),
+         ('30 Hz for 120 s, stream mode', 'bench_graph_stream'))),
+    'performance_stream': RunsTable(
+        'docs/performance.md',
+        (Column('answered / sent', ('frames.answered', 'frames.sent'), '{:.0f}'),
+         Column('publish -> markers: median / p95 (ms)',
+                ('timing_ms.answer.median', 'timing_ms.answer.p95'), '{:.1f}'),
+         _ADD, _CM5DEG5, _PROJ),
+        (('rendered 30 Hz camera path, per frame', 'stream_path_perframe'),
+         ('rendered 30 Hz camera path, stream mode', 'stream_path_stream'),
+         ('dev frames at 5 Hz, per frame', 'stream_dev_perframe'),
+         ('dev frames at 5 Hz, stream mode', 'stream_dev_stream')),
+        first='paced replay', tool='bbpose replay-eval --paced'),
+    'performance_stream_paired': RunsTable(
+        'docs/performance.md',
+        tuple(column for title, key in (('found', 'found'), ('ADD(-S)', 'add_s'),
+                                        ('5 cm / 5 deg', 'cm5deg5'), ('proj 5 px', 'proj5px'))
+              for column in (Column(f'{title}: stream - per frame',
+                                    (f'figures.{key}.diff',), '{:+.3f}'),
+                             Column('95 % interval', (f'figures.{key}.low',
+                                                      f'figures.{key}.high'), '{:+.3f}'))),
+        (('rendered 30 Hz camera path', 'stream_path_compare'),
+         ('dev frames at 5 Hz', 'stream_dev_compare')),
+        first='paced replay', tool='bbpose compare'),
 }
