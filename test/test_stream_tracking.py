@@ -187,6 +187,26 @@ def test_a_camera_slower_than_the_pipeline_detects_in_the_frame(scene, lmo_model
         tracker.reset()
 
 
+def test_frames_dropped_before_count_in_the_camera_period(scene, lmo_models):
+    frame, image, truths, _ = scene
+    tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=1000)
+    detector.gate.set()
+    try:
+        tracker.estimate(image, frame.camera, 1.0, 0)
+        name = truths[0].object_name
+        track = tracker.tracks[name]
+        tracker.tracks[name] = Track(replace(track.pose,
+                                             translation=track.pose.translation + 0.3))
+        # A second later by the stamps, but 200 frames on: a 200 Hz camera whose frames
+        # were dropped meanwhile, faster than the pipeline: the frame is handed on.
+        lost = tracker.estimate(image, frame.camera, 2.0, 200)
+        assert 'detector' not in lost.timings_ms and name not in {
+            p.object_name for p in lost.poses}
+        wait_for(lambda: detector.calls == 2)
+    finally:
+        tracker.reset()
+
+
 def test_reset_stops_the_background_job(scene, lmo_models):
     frame, image, _, _ = scene
     tracker, detector = stream_tracker(scene, lmo_models, tracking_redetect_every=1)

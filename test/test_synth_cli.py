@@ -108,6 +108,7 @@ def test_a_camera_path_makes_a_camera_rate_bag(egl, tmp_path, lmo_root):
 
 @pytest.mark.parametrize('argv, message', [
     (['--count', '1', '--camera-path'], '--camera-path needs --scene-style table'),
+    (['--count', '1', '--scene-style', 'table', '--rate', '15'], '--rate is for --camera-path'),
     (['--count', '0'], '--count'),
     (['--count', '1', '--objects', 'ape,teapot'], 'teapot'),
     (['--count', '1', '--seed', '-3'], '--seed'),

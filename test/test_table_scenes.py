@@ -309,9 +309,16 @@ def test_bad_config_is_refused(lmo_models):
 def test_a_camera_path_sees_one_scene_from_moving_poses(table, rendered):
     samples = [table.sample_with_layout(0, pose)
                for pose in orbit_path(table.camera_pose(0), 4, 5.0, 20.0, bob_m=0.02)]
-    # At t = 0 the path is the sample's own camera: the very same image.
-    assert np.array_equal(samples[0][0].image_rgb, rendered[0][0].image_rgb)
+    # At t = 0 the path is the sample's own camera: the same objects at the same poses.
+    for mine, theirs in zip(samples[0][0].instances, rendered[0][0].instances):
+        assert mine.object_name == theirs.object_name
+        np.testing.assert_allclose(mine.rotation, theirs.rotation, atol=1e-12)
+        np.testing.assert_allclose(mine.translation, theirs.translation, atol=1e-12)
+    assert len(samples[0][0].instances) == len(rendered[0][0].instances)
     assert not np.array_equal(samples[3][0].image_rgb, samples[0][0].image_rgb)
+    # Seen again from a pose of the path, the scene renders the same: one random stream.
+    again = table.sample_with_layout(0, samples[2][1].world_to_camera)[0]
+    assert np.array_equal(again.image_rgb, samples[2][0].image_rgb)
     first, first_layout = samples[0]
     for sample, layout in samples[1:]:
         assert [m.key for m in layout.meshes] == [m.key for m in first_layout.meshes]

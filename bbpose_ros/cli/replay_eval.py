@@ -219,6 +219,9 @@ def run(args: argparse.Namespace) -> int:
     image_topic, transport = bag_image_source(args.bag)
     overrides = with_transport(args.param, transport)
     if not args.paced:
+        if values['tracking_stream']:
+            print(f'bbpose replay-eval: {args.params} sets tracking_stream; a lock-step '
+                  'replay runs the node per frame (stream mode: --paced)', file=sys.stderr)
         overrides = per_frame_in_lockstep(overrides, values)
     recording = record(args, list(models), len(frames), overrides, image_topic)
     bag_path = results_bag_path(args.json)
@@ -229,8 +232,8 @@ def run(args: argparse.Namespace) -> int:
     if args.compare_tracking:
         tracking = bool(values['tracking'])
         flipped = record(args, list(models), len(frames),
-                         overrides + [f'tracking:={str(not tracking).lower()}']
-                         + ([] if not tracking else ['tracking_stream:=false']), image_topic)
+                         overrides + [f'tracking:={str(not tracking).lower()}',
+                                      'tracking_stream:=false'], image_topic)
         other = recording_report(flipped, score_recording(frames, flipped.poses, models),
                                  score_recording(frames, flipped.detections, models))
         report['tracking'] = {
@@ -238,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
                                               ('mean', 'timing_ms', 'frames')}
             for run_tracking, run in ((tracking, report), (not tracking, other))}
     report['config'] = {'bag': str(args.bag), 'params': str(args.params),
-                        'param_overrides': list(args.param), 'image_transport': transport,
+                        'param_overrides': overrides, 'image_transport': transport,
                         'paced': args.paced,
                         'results_bag': str(bag_path)}
     print(format_report(report))

@@ -45,6 +45,9 @@ from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_jso
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
 
+# The camera path's settings when not given: a camera's rate, a slow turn, a hand's bob.
+PATH_DEFAULTS = {'rate': 30.0, 'orbit_speed': 20.0, 'bob': 0.02}
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``synth`` subcommand on an argparse subparsers object; return it."""
@@ -72,13 +75,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     path.add_argument('--camera-path', action='store_true',
                       help="render the seed's first table scene from a camera circling what "
                            'it looks at, frame by frame')
-    path.add_argument('--rate', type=float, default=30.0,
-                      help='frames per second of the path (default %(default)s)')
-    path.add_argument('--orbit-speed', type=float, default=20.0,
-                      help='degrees per second the camera circles (default %(default)s)')
-    path.add_argument('--bob', type=float, default=0.02,
+    path.add_argument('--rate', type=float, default=None,
+                      help=f'frames per second of the path (default {PATH_DEFAULTS["rate"]})')
+    path.add_argument('--orbit-speed', type=float, default=None,
+                      help='degrees per second the camera circles (default '
+                           f'{PATH_DEFAULTS["orbit_speed"]})')
+    path.add_argument('--bob', type=float, default=None,
                       help='metres the camera moves up and down, at 0.5 Hz (default '
-                           '%(default)s)')
+                           f'{PATH_DEFAULTS["bob"]})')
     parser.set_defaults(func=run)
     return parser
 
@@ -104,6 +108,11 @@ def run(args: argparse.Namespace) -> int:
     target_models = {name: models[name] for name in targets}
     if args.camera_path and args.scene_style != 'table':
         raise InputError('--camera-path needs --scene-style table')
+    for name, default in PATH_DEFAULTS.items():
+        if getattr(args, name) is not None and not args.camera_path:
+            raise InputError(f'--{name.replace("_", "-")} is for --camera-path')
+        if getattr(args, name) is None:
+            setattr(args, name, default)
     if args.scene_style == 'table':
         config = with_inplane_range(TableConfig(), args)
         scenes = TableScenes(target_models, camera, args.seed, config, distractors)

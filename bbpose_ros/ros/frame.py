@@ -27,7 +27,9 @@ class Frame:
     An image: its header, (H, W, 3) uint8 RGB pixels, perf_counter at receipt.
 
     ``stream`` counts the backward stamp jumps before it: frames of one stream follow
-    each other in time, so a tracker resets when the stream changes. A compressed image
+    each other in time, so a tracker resets when the stream changes. ``index`` counts the
+    images of its stream received before it, those dropped later included: with the stamps
+    it gives the camera's frame period (``PoseTracker``). A compressed image
     waits undecoded: ``image_rgb`` None and ``compressed`` its message, until
     ``FrameIntake.decode``.
     """
@@ -36,6 +38,7 @@ class Frame:
     image_rgb: np.ndarray | None
     received_s: float
     stream: int
+    index: int
     compressed: CompressedImage | None = None
 
 

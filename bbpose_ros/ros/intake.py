@@ -91,6 +91,7 @@ class FrameIntake:
         self._pairer = StampPairer()
         self._stamps = StampChecker(FUTURE_STAMP_TOLERANCE_NS)
         self._stream = 0                          # backward stamp jumps seen
+        self._index = 0                           # images of the stream received so far
         self._frame_ids_warned: set[tuple[str, str]] = set()
         self._transport = 'raw'
 
@@ -193,7 +194,7 @@ class FrameIntake:
         try:
             frame = Frame(header, conversions.image_to_rgb(
                 message, self._node.get_parameter('max_image_pixels').value), received_s,
-                self._stream)
+                self._stream, self._index - 1)
         except InputError as err:
             self._problems.drop('bad_image', str(err),
                                 f'image dropped (stamp {stamp_text(header)}): {err}')
@@ -206,7 +207,8 @@ class FrameIntake:
         received_s = time.perf_counter()
         if not self._take_header(message.header):
             return
-        frame = Frame(message.header, None, received_s, self._stream, compressed=message)
+        frame = Frame(message.header, None, received_s, self._stream, self._index - 1,
+                      compressed=message)
         self._take(self._pairer.add_image(stamp_to_ns(message.header.stamp), frame,
                                           self._sync_slop()))
 
@@ -222,6 +224,8 @@ class FrameIntake:
             return False
         if odd is not None and odd[0] == BACKWARDS:
             self._stream += 1            # a new stream: what was tracked is of the old one
+            self._index = 0
+        self._index += 1
         if odd is not None:
             self._problems.warn(odd[0], odd[0], f'image (stamp {stamp_text(header)}) '
                                 f'answered anyway: {odd[1]}')

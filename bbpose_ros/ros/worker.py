@@ -122,7 +122,8 @@ class FrameWorker:
                 if isinstance(pipeline.pipeline, PoseTracker):
                     result = pipeline.pipeline.estimate(
                         image_rgb, camera.intrinsics,
-                        stamp_s=stamp_to_ns(frame.header.stamp) * 1e-9)
+                        stamp_s=stamp_to_ns(frame.header.stamp) * 1e-9,
+                        frame_index=frame.index)
                 else:
                     result = pipeline.pipeline.estimate(image_rgb, camera.intrinsics)
                 self._publishers.publish(frame.header, image_rgb, camera.intrinsics,

@@ -225,6 +225,7 @@ def replay_bag(player: BagPlayer, recorder: Recorder, process: NodeProcess,
             due = start + (recorded_ns - first) * 1e-9
             recorder.spin_until(lambda: time.monotonic() >= due, math.inf, process,
                                 latest=due)
+            recorder.executor.spin_once(timeout_sec=0.0)    # answers, also when late
         if topic == image_topic:
             if not paced:
                 _wait_answer(recorder, last, answer_timeout_s, process)

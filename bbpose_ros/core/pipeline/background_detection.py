@@ -171,7 +171,8 @@ class BackgroundDetection:
             except Exception as err:  # noqa: B902 - handed to the tracker, which raises it
                 error = err
             with self._changed:
-                self._busy = False
+                if stopped is self._stopped:    # a thread stopped and replaced leaves it
+                    self._busy = False
                 if stopped.is_set():
                     return
                 self._finished = FinishedJob(result, error, handed_s, started_s,

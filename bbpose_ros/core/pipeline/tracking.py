@@ -114,7 +114,7 @@ class PoseTracker:
         self._since_detection = 0
         self._background = BackgroundDetection(pipeline) \
             if pipeline.options.tracking_stream else None
-        self._last_stamp_s: float | None = None
+        self._last_frame: tuple[float, int | None] | None = None    # (stamp_s, index)
         self._frame_period_s: float | None = None     # running means, seconds
         self._pipeline_s: float | None = None
 
@@ -139,7 +139,7 @@ class PoseTracker:
             self._background.stop()
         self.tracks.clear()
         self._since_detection = 0
-        self._last_stamp_s = self._frame_period_s = None
+        self._last_frame = self._frame_period_s = None
 
     def close(self) -> None:
         """Reset and stop for good: later frames are answered by the tracks alone."""
@@ -148,18 +148,22 @@ class PoseTracker:
         self.reset()
 
     def estimate(self, image_rgb: np.ndarray, camera: CameraIntrinsics,
-                 stamp_s: float | None = None) -> FrameResult:
+                 stamp_s: float | None = None, frame_index: int | None = None
+                 ) -> FrameResult:
         """
         Track, detect when the policy says so, and return the frame's poses.
 
-        ``stamp_s``: the image's capture time, seconds (its header stamp), from which
-        stream mode learns the camera's frame period; None: the time of this call.
-        In stream mode ``image_rgb`` may be read by the background job after this returns:
-        the caller must not write to it afterwards.
+        ``stamp_s``: the image's capture time, seconds (its header stamp), and
+        ``frame_index``: its place in the camera's stream, frames dropped before this call
+        included (None: the frame follows the previous one), from which stream mode learns
+        the camera's frame period; None: the time of this call. In stream mode
+        ``image_rgb`` may be read by the background job after this returns: the caller
+        must not write to it afterwards.
         """
         if self._background is not None:
             return self._stream(image_rgb, camera,
-                                time.perf_counter() if stamp_s is None else stamp_s)
+                                time.perf_counter() if stamp_s is None else stamp_s,
+                                frame_index)
         timer = StageTimer()
         tracked = bool(self.tracks)
         lost = self._follow_tracks(image_rgb, camera)
@@ -176,10 +180,11 @@ class PoseTracker:
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
-    def _stream(self, image_rgb, camera, stamp_s):
+    def _stream(self, image_rgb, camera, stamp_s, frame_index):
         """Stream mode: adopt the finished job's poses, track, detect (here or beside)."""
         timer = StageTimer()
-        self._frame_period_s = self._observe(self._frame_period_s, self._frame_step(stamp_s))
+        self._frame_period_s = self._observe(self._frame_period_s,
+                                             self._frame_step(stamp_s, frame_index))
         untracked = []
         finished = self._background.take()
         if finished is not None:
@@ -207,15 +212,19 @@ class PoseTracker:
                                         if stage != 'total')
                 untracked = self._adopt(result.poses)
                 self._since_detection = 0
+                self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
-    def _frame_step(self, stamp_s):
-        """Return the seconds since the previous frame's stamp, None across a jump."""
-        last, self._last_stamp_s = self._last_stamp_s, stamp_s
-        if last is None or not 0.0 < stamp_s - last <= MAX_FRAME_PERIOD_S:
+    def _frame_step(self, stamp_s, frame_index):
+        """Return the camera's seconds per frame since the previous call, None across a jump."""
+        last, self._last_frame = self._last_frame, (stamp_s, frame_index)
+        if last is None:
             return None
-        return stamp_s - last
+        frames = 1 if frame_index is None or last[1] is None else frame_index - last[1]
+        if frames < 1 or not 0.0 < stamp_s - last[0] <= MAX_FRAME_PERIOD_S * frames:
+            return None
+        return (stamp_s - last[0]) / frames
 
     @staticmethod
     def _observe(mean, value):
@@ -228,8 +237,8 @@ class PoseTracker:
         """
         Tell whether the frame period holds the full pipeline with headroom (stream mode).
 
-        Before two stamps give a period (a stream's first frame, or the first after a jump)
-        it does: there is nothing to answer from but the frame itself.
+        Before two stamps give a period (a stream's first frame; ``reset`` starts a new
+        stream) it does: there is nothing to answer from but the frame itself.
         """
         return self._frame_period_s is None or self._pipeline_s is None or \
             self._frame_period_s > STREAM_HEADROOM * self._pipeline_s

@@ -349,7 +349,7 @@ def contour_distributions(bins, width, height, centres, normals, valid, hist_f, 
         # Local models compute theirs from the window's counts. Segments of one pixel
         # (``direct``) read their bin's probability instead, computed when a line first
         # reads the bin: such lines read a few hundred bins, far fewer than the table has.
-        log_ratio = np.empty(bin_count, dtype=np.float32)
+        log_ratio = np.empty(1 if direct or local else bin_count, dtype=np.float32)
         for b in range(0 if direct or local else bin_count):
             log_ratio[b] = _log_ratio(hist_f[n, b], hist_b[n, b], max_log_ratio)
         probability = np.empty(bin_count if direct else 1, dtype=np.float32)

@@ -39,11 +39,12 @@ def orbit_path(world_to_camera: np.ndarray, count: int, rate_hz: float, degrees_
 
     Frame i is at time t = i / ``rate_hz`` s: the start pose turned by ``degrees_per_s`` x t
     about the vertical axis through the point where its optical axis meets the table
-    (z = 0), so that it keeps looking at that point, and raised by ``bob_m`` x
-    sin(2 pi ``bob_hz`` t) metres (a hand's or an arm's up and down).
+    (z = 0), so that it keeps looking at that point, then raised by ``bob_m`` x
+    sin(2 pi ``bob_hz`` t) metres without turning (a hand's or an arm's up and down).
 
     Raises:
-        InputError: a start that does not look down at the table, or a count or rate < 1.
+        InputError: a start that does not look down at the table, a count < 1 or a rate
+            <= 0.
 
     """
     if count < 1 or not rate_hz > 0.0:

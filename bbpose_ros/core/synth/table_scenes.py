@@ -202,32 +202,40 @@ class TableScenes:
 
         ``world_to_camera``: a (4, 4) camera pose (table frame, metres) to see the scene
         from instead of the sample's own (``camera_pose``): the same table, objects, lights,
-        textures and camera effects seen from elsewhere, e.g. along a ``camera_path``.
+        textures and camera effects seen from elsewhere, e.g. along a ``camera_path``; no
+        wall then (a moving camera may pass where it stands).
         """
         config = self.config
-        rng = self._rng(index)
-        radius = rng.uniform(*config.cluster_radius_range)
-        placed = self._layout(rng, radius)
-        drawn = self._camera_pose(rng, radius)
-        world_to_camera = drawn if world_to_camera is None else np.asarray(world_to_camera)
+        rng, radius, placed, drawn = self._scene(index)
+        moved = world_to_camera is not None
+        world_to_camera = np.asarray(world_to_camera) if moved else drawn
         rotation_wc, translation_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
+        # Seen from elsewhere, every mesh draws its colours and material, seen or not, so
+        # that the random stream, and with it the scene, is the same from every pose.
+        gains = [self._color_gains(rng) for _ in placed] if moved else None
         draws, kept = [], []
-        for mesh in placed:
+        for k, mesh in enumerate(placed):
             rotation = rotation_wc @ mesh.rotation
             translation = rotation_wc @ mesh.translation + translation_wc
             if (self.hulls[mesh.key] @ rotation.T + translation)[:, 2].min() < _MIN_DEPTH:
                 continue
-            draws.append(Draw(mesh.key, rotation, translation, self._color_gains(rng)))
-            kept.append(mesh)
+            draws.append(Draw(mesh.key, rotation, translation,
+                              gains[k] if moved else self._color_gains(rng)))
+            kept.append(k)
+        if moved:
+            materials = [self._material(rng) for _ in placed]
+            materials = [materials[k] for k in kept]
+        else:
+            materials = [self._material(rng) for _ in draws]
+        kept = [placed[k] for k in kept]
         targets = [i for i, mesh in enumerate(kept) if mesh.key.startswith('target/')]
-        materials = [self._material(rng) for _ in draws]
         if not config.clutter:
             # Drawn, then left out: the same scene otherwise (the random stream is kept).
             draws, kept, materials = ([items[i] for i in targets]
                                       for items in (draws, kept, materials))
             targets = list(range(len(targets)))
         lights = self._lights(rng, world_to_camera, radius)
-        planes = self._planes(rng, world_to_camera, radius, drawn)
+        planes = self._planes(rng, world_to_camera, radius, drawn, wall=not moved)
         rendered = self.renderer.render_lit(draws, lights, materials, planes, targets)
         image = random_background(rng, self.camera.height, self.camera.width,
                                   self.backgrounds)
@@ -240,16 +248,23 @@ class TableScenes:
 
     def camera_pose(self, index: int) -> np.ndarray:
         """Return the (4, 4) world-to-camera pose sample ``index`` is seen from (metres)."""
-        rng = self._rng(index)
-        radius = rng.uniform(*self.config.cluster_radius_range)
-        self._layout(rng, radius)
-        return self._camera_pose(rng, radius)
+        return self._scene(index)[3]
 
-    def _rng(self, index):
-        """Return the random stream of sample ``index`` (a non-negative int)."""
+    def _scene(self, index):
+        """
+        Draw sample ``index``'s layout and camera.
+
+        Returns:
+            (its random stream, drawn so far; cluster radius, metres; PlacedMeshes; (4, 4)
+            world-to-camera).
+
+        """
         if int(index) != index or index < 0:
             raise InputError(f'sample index must be a non-negative integer, got {index}')
-        return np.random.default_rng([self.seed, 3, int(index)])
+        rng = np.random.default_rng([self.seed, 3, int(index)])
+        radius = rng.uniform(*self.config.cluster_radius_range)
+        placed = self._layout(rng, radius)
+        return rng, radius, placed, self._camera_pose(rng, radius)
 
     def _layout(self, rng, radius):
         """
@@ -333,11 +348,12 @@ class TableScenes:
         return SceneLights(tuple(lights), tuple(ambient), tuple(center), radius + 0.3,
                            config.shadows)
 
-    def _planes(self, rng, world_to_camera, radius, drawn):
+    def _planes(self, rng, world_to_camera, radius, drawn, wall=True):
         """
         Make the table, and maybe a wall, in the camera frame of ``world_to_camera``.
 
-        The wall stands behind the cluster as seen from the sample's ``drawn`` camera.
+        The wall stands behind the cluster as seen from the sample's ``drawn`` camera; it is
+        drawn (the random stream) but left out without ``wall``.
         """
         config = self.config
         rotation_wc = world_to_camera[:3, :3]
@@ -359,11 +375,13 @@ class TableScenes:
             wall_rotation = np.stack([along, np.cross(normal, along), normal], axis=1)
             centre = -normal * rng.uniform(*config.wall_distance_range) + \
                 up * _WALL_HALF_SIZE[1]
-            planes.append(TexturedPlane(rotation_wc @ wall_rotation,
-                                        _to_camera(world_to_camera, centre), _WALL_HALF_SIZE,
-                                        self._texture(rng),
-                                        float(rng.uniform(*config.texture_tile_range)),
-                                        self._material(rng)))
+            plane = TexturedPlane(rotation_wc @ wall_rotation,
+                                  _to_camera(world_to_camera, centre), _WALL_HALF_SIZE,
+                                  self._texture(rng),
+                                  float(rng.uniform(*config.texture_tile_range)),
+                                  self._material(rng))
+            if wall:
+                planes.append(plane)
         return planes
 
     def _texture(self, rng):
