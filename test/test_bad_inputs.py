@@ -360,9 +360,7 @@ def graph(lmo, lmo_root, tmp_path_factory):
     client.subscribe(TFMessage, '/tf')
     client.subscribe(DiagnosticArray, '/diagnostics')
     client.raw = [serialize_message(m) for m in camera_messages(lmo.frames()[:1])[0]]
-    assert client.spin_until(lambda: client.image.get_subscription_count() > 0
-                             and client.info.get_subscription_count() > 0
-                             and client.node.count_publishers(MARKERS) > 0), log.path
+    assert client.connected((client.image, client.info), MARKERS), log.path
     yield client, node, log
     client.close()
     node.stop()

@@ -226,9 +226,7 @@ def compressed_node(lmo, lmo_root, tmp_path_factory):
     client.subscribe(DiagnosticArray, '/diagnostics')
     image, client.info_message = camera_messages(lmo.frames()[:1])[0]
     client.rgb = conversions.image_to_rgb(image)
-    assert client.spin_until(lambda: client.image.get_subscription_count() > 0
-                             and client.info.get_subscription_count() > 0
-                             and client.node.count_publishers(MARKERS) > 0), log.path
+    assert client.connected((client.image, client.info), MARKERS), log.path
     yield client, node, log
     client.close()
     node.stop()

@@ -204,8 +204,7 @@ def test_activate_serves_and_deactivate_stops(graph):
     client, _, _ = graph
     assert transition(client, Transition.TRANSITION_ACTIVATE)
     assert state(client) == 'active'
-    assert client.spin_until(lambda: client.image.get_subscription_count() > 0
-                             and client.node.count_publishers(MARKERS) > 0)
+    assert client.connected((client.image,), MARKERS)
     assert answered(client)
     assert invalid_ids_refused(client, *graph[1:])
     assert transition(client, Transition.TRANSITION_DEACTIVATE)

@@ -86,9 +86,7 @@ def graph(lmo_root, weights, tmp_path_factory):
     client.subscribe(TFMessage, '/tf')
     client.subscribe(Image, DEBUG)
     client.subscribe(DiagnosticArray, '/diagnostics')
-    assert client.spin_until(lambda: client.image.get_subscription_count() > 0
-                             and client.info.get_subscription_count() > 0
-                             and client.node.count_publishers(DEBUG) > 0), log.path
+    assert client.connected((client.image, client.info), DEBUG), log.path
     client.spin_until(lambda: False, timeout_s=0.5)  # let the other endpoints match too
     yield client, node, log
     client.close()

@@ -132,6 +132,11 @@ class GraphClient:
             self.executor.spin_once(timeout_sec=0.02)
         return True
 
+    def connected(self, inputs, output):
+        """Spin until the node subscribes to the ``inputs`` publishers and publishes ``output``."""
+        return self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in inputs)
+                               and self.node.count_publishers(output) > 0)
+
     def call(self, srv_type, name, request, timeout_s=TIMEOUT_S):
         """Call service ``name`` once it is there; returns the response (None on timeout)."""
         client = self.clients.get(name)

@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.synth.stable_poses import yaw_rotation
 
 
 def orbit_path(world_to_camera: np.ndarray, count: int, rate_hz: float, degrees_per_s: float,
@@ -60,9 +61,7 @@ def orbit_path(world_to_camera: np.ndarray, count: int, rate_hz: float, degrees_
     poses = []
     for frame in range(count):
         seconds = frame / rate_hz
-        angle = math.radians(degrees_per_s * seconds)
-        turn = np.array([[math.cos(angle), -math.sin(angle), 0.0],
-                         [math.sin(angle), math.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+        turn = yaw_rotation(math.radians(degrees_per_s * seconds))
         lift = np.array([0.0, 0.0, bob_m * math.sin(2.0 * math.pi * bob_hz * seconds)])
         # The camera moves by x -> turn (x - pivot) + pivot + lift in the table frame.
         motion = np.eye(4)
