@@ -172,11 +172,7 @@ class PoseTracker:
         untracked = []
         if not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            result = self.pipeline.estimate(image_rgb, camera)
-            timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
-                                    if stage != 'total')
-            untracked = self._adopt(result.poses)
-            self._since_detection = 0
+            untracked = self._detect_here(image_rgb, camera, timer)
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
@@ -205,16 +201,19 @@ class PoseTracker:
                 self._background.hand(image_rgb, camera)
                 self._since_detection = 0
             elif self._background.idle:     # else the job in hand ends before long
-                result = self.pipeline.estimate(image_rgb, camera)
-                self._pipeline_s = self._observe(self._pipeline_s,
-                                                 result.timings_ms['total'] * 1e-3)
-                timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
-                                        if stage != 'total')
-                untracked = self._adopt(result.poses)
-                self._since_detection = 0
+                untracked = self._detect_here(image_rgb, camera, timer)
                 self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
+
+    def _detect_here(self, image_rgb, camera, timer):
+        """Run the full pipeline on this frame, adopt its poses; return the untracked ones."""
+        result = self.pipeline.estimate(image_rgb, camera)
+        self._pipeline_s = self._observe(self._pipeline_s, result.timings_ms['total'] * 1e-3)
+        timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
+                                if stage != 'total')
+        self._since_detection = 0
+        return self._adopt(result.poses)
 
     def _frame_step(self, stamp_s, frame_index):
         """Return the camera's seconds per frame since the previous call, None across a jump."""
