@@ -16,10 +16,11 @@
 Int8 graphs of the detector and Q-Net: their networks with 8-bit weights and activations.
 
 ONNX Runtime's static quantisation (``training.quantization`` makes the files) turns the
-convolutions and fully connected layers into integer ones; a CPU with int8 dot-product
-instructions (AVX-512 VNNI, AVX-VNNI) runs those faster than float ones, a CPU without them
-does not (docs/performance.md). ``precision: auto`` therefore takes the int8 graphs only on
-a CPU that has them (``choose_int8_graph``).
+convolutions and fully connected layers into integer ones. A CPU with int8 dot-product
+instructions (AVX-512 VNNI, AVX-VNNI) runs those much faster than float ones; an AVX2 CPU
+without them still runs the whole frame faster, at the same accuracy on the held-out
+frames (docs/performance.md). ``precision: auto`` therefore takes the int8 graphs on both
+(``INT8_AUTO_FLAGS``, ``choose_int8_graph``) and the float networks elsewhere.
 
 A graph file (``<weights stem>_int8.onnx`` beside the float weight file) holds metadata
 naming the float file it was quantised from (its SHA-256): a graph quantised from other

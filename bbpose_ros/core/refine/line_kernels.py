@@ -184,16 +184,61 @@ def project_contours(view_directions, view_points, view_normals, view_runs_f, vi
             runs_b[n, k] = view_runs_b[view, k] * px_per_m
 
 
+# Horizontal bands an occluder's outline is cut into: a point's inside test reads only the
+# edges that cross its band.
+OUTLINE_BANDS = 64
+
+
 @numba.njit(**_NUMBA)
-def _inside_polygon(u, v, polygon):
-    """Tell whether (u, v) lies inside the closed (P, 2) polygon (even-odd rule)."""
+def _outline_bands(polygon, v_low, v_high, bands):
+    """
+    Index a closed (P, 2) outline's edges by the horizontal bands of rows they span.
+
+    Band b covers v in [v_low + b * h, v_low + (b + 1) * h), h = (v_high - v_low) / bands
+    (v_high > v_low);
+    edge i joins vertex i - 1 (the last for i = 0) to vertex i. Each edge is listed in the
+    bands its rows touch and, as a margin for the rounding of a point's band, their
+    neighbours: a band lists every edge a point in it can cross (and a few it cannot).
+
+    Returns:
+        ((bands + 1,) int64 starts, (E,) int64 edges): band b's edges are
+        ``edges[starts[b]:starts[b + 1]]``.
+
+    """
+    points = polygon.shape[0]
+    per_band = bands / (v_high - v_low)
+    first, last = np.empty(points, dtype=np.int64), np.empty(points, dtype=np.int64)
+    starts = np.zeros(bands + 1, dtype=np.int64)
+    previous = points - 1
+    for i in range(points):
+        v_i, v_j = polygon[i, 1], polygon[previous, 1]
+        first[i] = max(int((min(v_i, v_j) - v_low) * per_band) - 1, 0)
+        last[i] = min(int((max(v_i, v_j) - v_low) * per_band) + 1, bands - 1)
+        for b in range(first[i], last[i] + 1):
+            starts[b + 1] += 1
+        previous = i
+    for b in range(bands):
+        starts[b + 1] += starts[b]
+    edges = np.empty(starts[bands], dtype=np.int64)
+    fill = starts[:bands].copy()
+    for i in range(points):
+        for b in range(first[i], last[i] + 1):
+            edges[fill[b]] = i
+            fill[b] += 1
+    return starts, edges
+
+
+@numba.njit(**_NUMBA)
+def _inside_outline(u, v, polygon, band, starts, edges):
+    """Tell whether (u, v) lies inside an outline (even-odd rule), by its band's edges."""
     inside = False
-    last = polygon.shape[0] - 1
-    for i in range(polygon.shape[0]):
-        u_i, v_i, u_j, v_j = polygon[i, 0], polygon[i, 1], polygon[last, 0], polygon[last, 1]
+    points = polygon.shape[0]
+    for e in range(starts[band], starts[band + 1]):
+        i = edges[e]
+        j = i - 1 if i > 0 else points - 1
+        u_i, v_i, u_j, v_j = polygon[i, 0], polygon[i, 1], polygon[j, 0], polygon[j, 1]
         if (v_i > v) != (v_j > v) and u < (u_j - u_i) * (v - v_i) / (v_j - v_i) + u_i:
             inside = not inside
-        last = i
     return inside
 
 
@@ -216,20 +261,24 @@ def hide_occluded(centres, depths, instances, casts, in_front):
 
     """
     count, points = in_front.shape
-    low, high = np.empty((count, 2)), np.empty((count, 2))
     for m in range(count):
-        for a in range(2):
-            low[m, a], high[m, a] = centres[m, :, a].min(), centres[m, :, a].max()
-    for n in range(count):
-        for m in range(count):
-            if instances[m] == instances[n] or not casts[m] or depths[m] >= depths[n]:
+        if not casts[m]:
+            continue
+        u_low, u_high = centres[m, :, 0].min(), centres[m, :, 0].max()
+        v_low, v_high = centres[m, :, 1].min(), centres[m, :, 1].max()
+        if not v_high > v_low:      # no area (or not finite): it covers nothing
+            continue
+        per_band = OUTLINE_BANDS / (v_high - v_low)
+        starts, edges = _outline_bands(centres[m], v_low, v_high, OUTLINE_BANDS)
+        for n in range(count):
+            if instances[m] == instances[n] or depths[m] >= depths[n]:
                 continue
             for k in range(points):
                 u, v = centres[n, k, 0], centres[n, k, 1]
-                if (in_front[n, k] and low[m, 0] <= u <= high[m, 0]
-                        and low[m, 1] <= v <= high[m, 1]
-                        and _inside_polygon(u, v, centres[m])):
-                    in_front[n, k] = False
+                if in_front[n, k] and u_low <= u <= u_high and v_low <= v <= v_high:
+                    band = min(int((v - v_low) * per_band), OUTLINE_BANDS - 1)
+                    if _inside_outline(u, v, centres[m], band, starts, edges):
+                        in_front[n, k] = False
 
 
 @numba.njit(**_NUMBA)
