@@ -336,3 +336,21 @@ def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_mode
             np.testing.assert_array_equal(one.translation, other.translation)
     with pytest.raises(InputError, match='PnP threads must be >= 0'):
         DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(), pnp_threads=-1)
+
+
+def test_the_stage_runs_on_some_of_its_objects(lmo_frames, lmo_models):
+    network = load_network(DEFAULT_DENSE_WEIGHTS, 'dense', list(lmo_models))
+    frame = lmo_frames[0]
+    detection = next(Detection(i.object_name, 1.0, i.box_uv) for i in frame.instances
+                     if np.all(np.isfinite(i.box_uv)))
+    name = detection.object_name
+    image = frame.load_image()
+    _, every = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
+                                            pnp_threads=1)(image, frame.camera, [detection])
+    _, one = DenseCorrespondenceEstimator(network, {name: lmo_models[name]}, PipelineOptions(),
+                                          pnp_threads=1)(image, frame.camera, [detection])
+    assert every[0] is not None
+    np.testing.assert_array_equal(every[0].rotation, one[0].rotation)
+    np.testing.assert_array_equal(every[0].translation, one[0].translation)
+    with pytest.raises(InputError, match='the dense net has no output for stranger'):
+        DenseCorrespondenceEstimator(network, {'stranger': lmo_models[name]}, PipelineOptions())

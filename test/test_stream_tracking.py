@@ -41,8 +41,9 @@ WAIT_S = 60.0
 class GatedDetector:
     """The ground-truth boxes of a frame, returned once the gate opens; counts its runs."""
 
-    def __init__(self, truths):
+    def __init__(self, truths, delay_s=0.0):
         self.truths = truths
+        self.delay_s = delay_s
         self.gate = threading.Event()
         self.calls = 0
         self.running = 0
@@ -53,6 +54,7 @@ class GatedDetector:
         self.running += 1
         self.most_running = max(self.most_running, self.running)
         self.gate.wait(WAIT_S)
+        time.sleep(self.delay_s)
         self.running -= 1
         return [Detection(i.object_name, 0.9, i.box_uv) for i in self.truths]
 
@@ -67,8 +69,13 @@ def scene(lmo_models, lmo_frames):
     return frame, frame.load_image(), truths, models
 
 
-def stream_tracker(scene, lmo_models, **settings):
-    """Make a stream-mode PoseTracker over a gated ground-truth detector and rotations."""
+def stream_tracker(scene, lmo_models, in_place=None, **settings):
+    """
+    Make a stream-mode PoseTracker over a gated ground-truth detector and rotations.
+
+    ``in_place``: a detector for a second pipeline of the same stages, the tracker's
+    in-place route.
+    """
     frame, _, truths, models = scene
     detector = GatedDetector(truths)
     by_name = {i.object_name: i.rotation for i in truths}
@@ -78,9 +85,12 @@ def stream_tracker(scene, lmo_models, **settings):
 
     options = PipelineOptions(tracking=True, tracking_stream=True, tracking_min_score=0.3,
                               **settings)
-    pipeline = PosePipeline({n: lmo_models[n] for n in models}, options, detector, rotations,
+    objects = {n: lmo_models[n] for n in models}
+    pipeline = PosePipeline(objects, options, detector, rotations,
                             refiner=PoseRefiner(models, options))
-    return PoseTracker(pipeline), detector
+    second = None if in_place is None else PosePipeline(objects, options, in_place, rotations,
+                                                        refiner=pipeline.refiner)
+    return PoseTracker(pipeline, second), detector
 
 
 def wait_for(condition, limit_s=WAIT_S):
@@ -190,6 +200,49 @@ def test_the_camera_period_decides_where_a_lost_track_is_detected(scene, lmo_mod
         wait_for(lambda: detector.calls == 2)       # in the frame, or beside it
     finally:
         tracker.reset()
+
+
+def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models):
+    frame, image, truths, _ = scene
+    slow = GatedDetector(truths, delay_s=1.0)       # the in-place route: a second a frame
+    tracker, detector = stream_tracker(scene, lmo_models, in_place=slow,
+                                       tracking_redetect_every=1000)
+    detector.gate.set()
+    slow.gate.set()
+    name = truths[0].object_name
+    try:
+        # The first frame (no period yet) takes the shipped route.
+        tracker.estimate(image, frame.camera, 1.0)
+        assert (detector.calls, slow.calls) == (1, 0)
+        # A frame every 0.5 s holds the shipped route; the in-place one, its run time not
+        # known yet, is tried, and takes longer than the period.
+        lose_track(tracker, name)
+        found = tracker.estimate(image, frame.camera, 1.5)
+        assert (detector.calls, slow.calls) == (1, 1)
+        assert name in {p.object_name for p in found.poses}
+        # From then on the shipped route detects in the frame; five seconds a frame hold
+        # both.
+        lose_track(tracker, name)
+        tracker.estimate(image, frame.camera, 2.0)
+        assert (detector.calls, slow.calls) == (2, 1)
+        for stamp in (7.0, 12.0):       # the running mean of the period grows to hold it
+            lose_track(tracker, name)
+            tracker.estimate(image, frame.camera, stamp)
+        calls = slow.calls, detector.calls
+        lose_track(tracker, name)
+        tracker.estimate(image, frame.camera, 17.0)
+        assert (slow.calls, detector.calls) == (calls[0] + 1, calls[1])
+    finally:
+        tracker.reset()
+
+
+def test_in_place_route_shares_the_refiner(scene, lmo_models):
+    tracker, _ = stream_tracker(scene, lmo_models)
+    other = PosePipeline(tracker.pipeline.models, tracker.options, None, None,
+                         refiner=PoseRefiner(tracker.pipeline.refiner.viewpoint_models,
+                                             tracker.options))
+    with pytest.raises(InputError, match='share the tracked refiner'):
+        PoseTracker(tracker.pipeline, other)
 
 
 def test_reset_stops_the_background_job(scene, lmo_models):

@@ -144,6 +144,10 @@ class PipelineOptions:
         False, 'With tracking, answer every frame from the tracks alone and run the detector, '
         'Q-Net and refinement beside it in a thread of their own on the newest frame; their '
         'poses join the tracks when they arrive (needs tracking).')
+    tracking_in_place_pose_source: str = _setting(
+        'dense+qnet', 'In stream mode, the pose_source of a frame detected in the frame itself '
+        "when the camera's frame period holds that route's run time (a slow camera); "
+        "otherwise, and for a stream's first frame, pose_source.", choices=POSE_SOURCES)
     inference_backend: str = _setting(
         'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         choices=BACKENDS)

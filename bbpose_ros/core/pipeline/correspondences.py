@@ -67,7 +67,8 @@ class DenseCorrespondenceEstimator:
 
     Args:
         network: a DenseNet (a copy is prepared for inference by ``make_runner``).
-        models: {name: ObjectModel} of its objects (for the model boxes).
+        models: {name: ObjectModel} of the objects it is run on (for the model boxes): the
+            network's or some of them.
         options: the PipelineOptions: what runs the network (``backends.make_runner``).
         pnp_threads: threads the crops' PnP solves are spread over (0: one per core; 1:
             in the calling thread).
@@ -85,11 +86,12 @@ class DenseCorrespondenceEstimator:
         if pnp_threads < 0:
             raise InputError(f'PnP threads must be >= 0 (0: one per core), got {pnp_threads}')
         self.config = network.config
-        missing = [name for name in self.config.objects if name not in models]
+        missing = [name for name in models if name not in self.config.objects]
         if missing:
-            raise InputError(f'no model of {", ".join(missing)} for the dense net')
+            raise InputError(f'the dense net has no output for {", ".join(missing)} (it has '
+                             f'{", ".join(self.config.objects)})')
         self.index = {name: k for k, name in enumerate(self.config.objects)}
-        self.boxes = {name: model_box(models[name].vertices) for name in self.config.objects}
+        self.boxes = {name: model_box(model.vertices) for name, model in models.items()}
         self.network = make_runner(network, self._blank_batch(1), options, dynamic_batch=True)
         workers = pnp_threads or os.cpu_count() or 1
         self._pnp_pool = ThreadPoolExecutor(workers, 'dense-pnp') if workers > 1 else None

@@ -27,7 +27,7 @@ other stage is the one the options build.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -94,7 +94,9 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
 
     Returns:
         A PosePipeline, or with ``options.tracking`` a PoseTracker around one (same
-        ``estimate`` and ``models``).
+        ``estimate`` and ``models``); in stream mode with a ``tracking_in_place_pose_source``
+        other than ``pose_source``, a second PosePipeline of that route (the same stages)
+        detects the frames the camera leaves time for.
 
     Raises:
         InputError: a missing, corrupt or mismatched weight file.
@@ -117,7 +119,12 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         detector = BoxDetector(load_network(detector_weights, 'detector', names), names, options,
                                choose_int8_graph(options, detector_weights, 'detector'))
         detector.warm_up()
-    if options.uses_qnet and not given.rotations:
+    # Stream mode's route for the frames the camera leaves time for, where it differs.
+    in_place = replace(options, pose_source=options.tracking_in_place_pose_source) \
+        if options.tracking_stream and \
+        options.tracking_in_place_pose_source != options.pose_source else None
+    routes = [options] + ([in_place] if in_place is not None else [])
+    if any(route.uses_qnet for route in routes) and not given.rotations:
         qnet_weights = weights.qnet or DEFAULT_QNET_WEIGHTS
         qnet = load_network(qnet_weights, 'qnet', names)
         # Every hypothesis is needed when they are ranked by box or mask or several refined.
@@ -128,11 +135,16 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
                                          int8_graph=choose_int8_graph(options, qnet_weights,
                                                                       'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
-    if options.runs_dense(rotations_given=given.rotations):
+    dense = [route.runs_dense(rotations_given=given.rotations) for route in routes]
+    if any(dense):
         correspondences = load_correspondences(models, options, weights.dense)
-    pipeline = PosePipeline(models, options, detector, rotation, hypothesis_selector=selector,
-                            refiner=refiner, correspondences=correspondences)
-    return PoseTracker(pipeline) if options.tracking else pipeline
+    # The routes share the stages; each runs the dense net where it uses it.
+    pipelines = [PosePipeline(models, route, detector, rotation, hypothesis_selector=selector,
+                              refiner=refiner, correspondences=correspondences if runs else None)
+                 for route, runs in zip(routes, dense)]
+    if not options.tracking:
+        return pipelines[0]
+    return PoseTracker(*pipelines)
 
 
 def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOptions,

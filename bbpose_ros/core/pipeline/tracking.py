@@ -45,7 +45,10 @@ frame period (from the image stamps) exceeds ``STREAM_HEADROOM`` times the pipel
 time, no frame is handed on; once no job runs, stream mode detects in the frame itself, as
 tracking mode does, and answers with the frame's own detections instead of poses carried
 over a large motion. So is a stream's first frame (no period known yet): a single image is
-answered with its poses.
+answered with its poses. A tracker given a second pipeline (``in_place``: the loader's
+``tracking_in_place_pose_source`` route, slower and more accurate) detects with it instead
+where the period holds that route's run time too (learned the same way; tried once when
+not known yet).
 
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
@@ -103,13 +106,18 @@ class PoseTracker:
     Args:
         pipeline: a PosePipeline with detector, rotation estimator and refiner; the
             tracker reads its ``options``' ``tracking_*`` settings.
+        in_place: in stream mode, a pipeline (the same refiner) for the frames detected in
+            the frame itself where the camera's period holds its run time; None: ``pipeline``.
 
     """
 
-    def __init__(self, pipeline: PosePipeline) -> None:
+    def __init__(self, pipeline: PosePipeline, in_place: PosePipeline | None = None) -> None:
         if not isinstance(pipeline.refiner, PoseRefiner):
             raise InputError('tracking needs a pipeline with a PoseRefiner')
+        if in_place is not None and in_place.refiner is not pipeline.refiner:
+            raise InputError('the in-place pipeline must share the tracked refiner')
         self.pipeline = pipeline
+        self.in_place = in_place
         self.tracks: dict[str, Track] = {}
         self._since_detection = 0
         self._background = BackgroundDetection(pipeline) \
@@ -117,6 +125,7 @@ class PoseTracker:
         self._last_frame: tuple[float, int | None] | None = None    # (stamp_s, index)
         self._frame_period_s: float | None = None     # running means, seconds
         self._pipeline_s: float | None = None
+        self._in_place_s: float | None = None
 
     @property
     def options(self) -> PipelineOptions:
@@ -197,19 +206,25 @@ class PoseTracker:
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            if not self._camera_leaves_time():
+            route = self._route_in_place()
+            if route is None:
                 self._background.hand(image_rgb, camera)
                 self._since_detection = 0
             elif self._background.idle:     # else the job in hand ends before long
-                untracked = self._detect_here(image_rgb, camera, timer)
+                untracked = self._detect_here(image_rgb, camera, timer, route)
                 self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
-    def _detect_here(self, image_rgb, camera, timer):
-        """Run the full pipeline on this frame, adopt its poses; return the untracked ones."""
-        result = self.pipeline.estimate(image_rgb, camera)
-        self._pipeline_s = self._observe(self._pipeline_s, result.timings_ms['total'] * 1e-3)
+    def _detect_here(self, image_rgb, camera, timer, route=None):
+        """Run a full pipeline on this frame, adopt its poses; return the untracked ones."""
+        route = route or self.pipeline
+        result = route.estimate(image_rgb, camera)
+        seconds = result.timings_ms['total'] * 1e-3
+        if route is self.pipeline:
+            self._pipeline_s = self._observe(self._pipeline_s, seconds)
+        else:
+            self._in_place_s = self._observe(self._in_place_s, seconds)
         timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
                                 if stage != 'total')
         self._since_detection = 0
@@ -232,15 +247,25 @@ class PoseTracker:
             return mean
         return value if mean is None else mean + STREAM_SMOOTHING * (value - mean)
 
-    def _camera_leaves_time(self):
+    def _route_in_place(self):
         """
-        Tell whether the frame period holds the full pipeline with headroom (stream mode).
+        Return the pipeline to detect this frame with, or None: hand it on (stream mode).
 
-        Before two stamps give a period (a stream's first frame; ``reset`` starts a new
-        stream) it does: there is nothing to answer from but the frame itself.
+        Where the frame period holds the full pipeline with headroom, the frame is detected
+        in place: by ``in_place`` where the period holds its run time as well (or that is
+        not known yet), else by ``pipeline``. Before two stamps give a period (a stream's
+        first frame; ``reset`` starts a new stream) ``pipeline`` detects it: there is
+        nothing to answer from but the frame itself.
         """
-        return self._frame_period_s is None or self._pipeline_s is None or \
-            self._frame_period_s > STREAM_HEADROOM * self._pipeline_s
+        period = self._frame_period_s
+        if period is None or self._pipeline_s is None:
+            return self.pipeline
+        if period <= STREAM_HEADROOM * self._pipeline_s:
+            return None
+        if self.in_place is not None and (self._in_place_s is None
+                                          or period > STREAM_HEADROOM * self._in_place_s):
+            return self.in_place
+        return self.pipeline
 
     def _follow_tracks(self, image_rgb, camera):
         """Refine every track from its last pose; drop the lost ones; tell if any was."""
