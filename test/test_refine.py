@@ -742,8 +742,9 @@ def _inside_even_odd(u, v, polygon):
 
 
 def test_occluders_hide_exactly_the_points_inside_their_outline():
-    # Concave star outlines (spikes thinner than the outline's bands); the points tested
-    # include every vertex of the hidden outline, where rounding decides the band.
+    # A concave star outline (spikes thinner than its bands) hides two farther outlines:
+    # another star, and the occluder's own vertices moved sideways, points on the rows of
+    # its edges' ends, where an edge's band and a point's meet.
     rng = np.random.default_rng(3)
     points, hidden = 200, 0
     angle = np.linspace(0.0, 2.0 * np.pi, points, endpoint=False)
@@ -751,13 +752,18 @@ def test_occluders_hide_exactly_the_points_inside_their_outline():
         radius = rng.uniform(20.0, 80.0, (2, 1)) * (1.0 + 0.6 * np.sin(
             rng.integers(3, 40, (2, 1)) * angle + rng.uniform(0, 6, (2, 1))))
         centre = rng.uniform(100.0, 200.0, (2, 2))
-        centres = np.stack([centre[:, None, 0] + radius * np.cos(angle),
-                            centre[:, None, 1] + radius * np.sin(angle)], axis=-1)
-        in_front = np.ones((2, points), bool)
-        line_kernels.hide_occluded(centres, np.array([1.0, 2.0]), np.arange(2),
-                                   np.ones(2, bool), in_front)
+        stars = np.stack([centre[:, None, 0] + radius * np.cos(angle),
+                          centre[:, None, 1] + radius * np.sin(angle)], axis=-1)
+        beside = stars[0] + np.stack([rng.uniform(-3.0, 3.0, points), np.zeros(points)], 1)
+        centres = np.concatenate([stars, beside[None]])
+        in_front = np.ones((3, points), bool)
+        line_kernels.hide_occluded(centres, np.array([1.0, 2.0, 3.0]), np.arange(3),
+                                   np.array([True, False, False]), in_front)
         assert in_front[0].all()        # the nearer one is never hidden
-        expected = _inside_even_odd(centres[1, :, 0], centres[1, :, 1], centres[0])
-        np.testing.assert_array_equal(~in_front[1], expected, err_msg=f'trial {trial}')
-        hidden += expected.sum()
-    assert 0 < hidden < 20 * points / 2
+        for target in (1, 2):
+            expected = _inside_even_odd(centres[target, :, 0], centres[target, :, 1],
+                                        centres[0])
+            np.testing.assert_array_equal(~in_front[target], expected,
+                                          err_msg=f'trial {trial}, outline {target}')
+            hidden += expected.sum()
+    assert 0 < hidden < 20 * 2 * points * 3 / 4

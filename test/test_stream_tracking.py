@@ -21,9 +21,14 @@ import time
 import numba
 import numpy as np
 import pytest
+import torch
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.inference.weights import save_weights
+from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
+from bbpose_ros.core.pipeline import tracking
+from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
@@ -202,7 +207,9 @@ def test_the_camera_period_decides_where_a_lost_track_is_detected(scene, lmo_mod
         tracker.reset()
 
 
-def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models):
+def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models,
+                                                              monkeypatch):
+    monkeypatch.setattr(tracking, 'IN_PLACE_RETRY_EVERY', 3)
     frame, image, truths, _ = scene
     slow = GatedDetector(truths, delay_s=1.0)       # the in-place route: a second a frame
     tracker, detector = stream_tracker(scene, lmo_models, in_place=slow,
@@ -210,39 +217,69 @@ def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models)
     detector.gate.set()
     slow.gate.set()
     name = truths[0].object_name
+
+    def lost_and_found(stamp):
+        """Lose a track, answer a frame stamped ``stamp``; return (shipped, in-place) runs."""
+        lose_track(tracker, name)
+        found = tracker.estimate(image, frame.camera, stamp)
+        assert name in {p.object_name for p in found.poses}
+        return detector.calls, slow.calls
+
     try:
         # The first frame (no period yet) takes the shipped route.
         tracker.estimate(image, frame.camera, 1.0)
         assert (detector.calls, slow.calls) == (1, 0)
         # A frame every 0.5 s holds the shipped route; the in-place one, its run time not
-        # known yet, is tried, and takes longer than the period.
-        lose_track(tracker, name)
-        found = tracker.estimate(image, frame.camera, 1.5)
-        assert (detector.calls, slow.calls) == (1, 1)
-        assert name in {p.object_name for p in found.poses}
-        # From then on the shipped route detects in the frame; five seconds a frame hold
-        # both.
-        lose_track(tracker, name)
-        tracker.estimate(image, frame.camera, 2.0)
-        assert (detector.calls, slow.calls) == (2, 1)
-        for stamp in (7.0, 12.0):       # the running mean of the period grows to hold it
-            lose_track(tracker, name)
-            tracker.estimate(image, frame.camera, stamp)
-        calls = slow.calls, detector.calls
-        lose_track(tracker, name)
-        tracker.estimate(image, frame.camera, 17.0)
-        assert (slow.calls, detector.calls) == (calls[0] + 1, calls[1])
+        # known yet, is tried and takes longer than the period.
+        assert lost_and_found(1.5) == (1, 1)
+        # The shipped route detects the next frames in place, until the in-place route is
+        # tried again (every third such frame here).
+        assert lost_and_found(2.0) == (2, 1)
+        assert lost_and_found(2.5) == (3, 1)
+        assert lost_and_found(3.0) == (3, 2)
+        # Five seconds a frame: once the running mean of the period holds it, it detects.
+        for stamp in (8.0, 13.0):
+            lost_and_found(stamp)
+        calls = detector.calls, slow.calls
+        assert lost_and_found(18.0) == (calls[0], calls[1] + 1)
     finally:
         tracker.reset()
 
 
-def test_in_place_route_shares_the_refiner(scene, lmo_models):
+def test_the_in_place_route_must_share_the_refiner(scene, lmo_models):
     tracker, _ = stream_tracker(scene, lmo_models)
     other = PosePipeline(tracker.pipeline.models, tracker.options, None, None,
                          refiner=PoseRefiner(tracker.pipeline.refiner.viewpoint_models,
                                              tracker.options))
     with pytest.raises(InputError, match='share the tracked refiner'):
         PoseTracker(tracker.pipeline, other)
+
+
+def test_the_loader_builds_the_in_place_route_with_the_stages_it_uses(lmo_models, tmp_path):
+    options = PipelineOptions(tracking=True, tracking_stream=True, inference_threads=1)
+    tracker = load_pipeline(lmo_models, options)
+    shipped, in_place = tracker.pipeline, tracker.in_place
+    assert in_place.options.pose_source == 'dense+qnet' and shipped.options.pose_source == 'qnet'
+    assert shipped.correspondences is None and in_place.correspondences is not None
+    assert in_place.detector is shipped.detector and in_place.refiner is shipped.refiner
+    assert in_place.rotation_estimator is shipped.rotation_estimator is not None
+    # A dense route keeps running without Q-Net beside an in-place route that uses it.
+    dense = load_pipeline(lmo_models, replace(options, pose_source='dense'))
+    assert dense.pipeline.rotation_estimator is None
+    assert dense.in_place.rotation_estimator is not None
+    # A dense net without some of the objects: logged, and the in-place route left out.
+    torch.manual_seed(0)
+    partial = tmp_path / 'dense_ape.pt'
+    save_weights(partial, DenseNet(DenseConfig(('ape',), crop_size=32, channels=16)), 'dense',
+                 {'command': 'test'})
+    lines = []
+    alone = load_pipeline(lmo_models, options, WeightFiles(dense=partial), log=lines.append)
+    assert alone.in_place is None and alone.pipeline.correspondences is None
+    assert any('tracking_in_place_pose_source dense+qnet needs the dense net' in line
+               and 'lacks' in line for line in lines)
+    # Where pose_source already is the in-place route, there is one pipeline.
+    same = replace(options, tracking_in_place_pose_source='qnet')
+    assert load_pipeline(lmo_models, same).in_place is None
 
 
 def test_reset_stops_the_background_job(scene, lmo_models):

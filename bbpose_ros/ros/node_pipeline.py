@@ -89,6 +89,10 @@ def build_node_pipeline(config: NodeConfig,
         stages = getattr(pipeline, 'pipeline', pipeline)      # inside a PoseTracker
         qnet = getattr(stages.rotation_estimator, 'precision', 'not used')
         dense = getattr(stages.correspondences, 'precision', 'not used')
+        in_place = getattr(pipeline, 'in_place', None)     # stream mode's second route
+        if in_place is not None:
+            dense = getattr(in_place.correspondences, 'precision', dense)
+            dense += f' (frames detected in place: pose_source {in_place.options.pose_source})'
         log(f'networks: detector {stages.detector.precision}, Q-Net {qnet}, dense net '
             f'{dense} (inference_precision {config.options.inference_precision})')
     return NodePipeline(pipeline, MarkerArrayBuilder(models), DetectionsBuilder(models))

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import use_inference_threads
 from bbpose_ros.core.inference.int8_graphs import choose_int8_graph
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -90,7 +91,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         weights: the weight files.
         given: the stages the ground truth replaces.
         log: gets a line for each viewpoint model the refiner builds (once per mesh, then
-            cached).
+            cached), and one where stream mode's in-place route cannot load its dense net
+            (the frames detected in place then take ``pose_source``).
 
     Returns:
         A PosePipeline, or with ``options.tracking`` a PoseTracker around one (same
@@ -104,31 +106,30 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
     """
     use_inference_threads(options)
     names = list(models)
+    # Stream mode's route for the frames the camera leaves time for, where it differs: it
+    # shares the stages, each route running those it uses.
+    routes = [options]
+    if options.tracking_stream and options.tracking_in_place_pose_source != options.pose_source:
+        routes.append(replace(options, pose_source=options.tracking_in_place_pose_source))
     refiner = None
     if options.refine:
         refiner = load_pose_refiner(models, options, progress=False, log=log)
     agreement = None
-    if options.ranks_by_mask and not given.rotations:
+    if any(route.ranks_by_mask for route in routes) and not given.rotations:
         # The silhouettes come from the refiner's viewpoint models.
         agreement = MaskAgreement(refiner.viewpoint_models if refiner is not None else
                                   load_viewpoint_models(models, progress=False, log=log))
-    selector = HypothesisSelector(models, options, agreement)
     detector = rotation = correspondences = None
     if not given.boxes:
         detector_weights = weights.detector or DEFAULT_DETECTOR_WEIGHTS
         detector = BoxDetector(load_network(detector_weights, 'detector', names), names, options,
                                choose_int8_graph(options, detector_weights, 'detector'))
         detector.warm_up()
-    # Stream mode's route for the frames the camera leaves time for, where it differs.
-    in_place = replace(options, pose_source=options.tracking_in_place_pose_source) \
-        if options.tracking_stream and \
-        options.tracking_in_place_pose_source != options.pose_source else None
-    routes = [options] + ([in_place] if in_place is not None else [])
     if any(route.uses_qnet for route in routes) and not given.rotations:
         qnet_weights = weights.qnet or DEFAULT_QNET_WEIGHTS
         qnet = load_network(qnet_weights, 'qnet', names)
         # Every hypothesis is needed when they are ranked by box or mask or several refined.
-        ranked = options.box_consistency_weight > 0 or options.ranks_by_mask or \
+        ranked = options.box_consistency_weight > 0 or agreement is not None or \
             (options.refine and options.refine_hypotheses > 1)
         rotation = QNetRotationEstimator(qnet, options,
                                          all_hypotheses=qnet.config.hypotheses > 1 and ranked,
@@ -136,15 +137,24 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
                                                                       'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
     dense = [route.runs_dense(rotations_given=given.rotations) for route in routes]
-    if any(dense):
+    if dense[0]:
         correspondences = load_correspondences(models, options, weights.dense)
-    # The routes share the stages; each runs the dense net where it uses it.
-    pipelines = [PosePipeline(models, route, detector, rotation, hypothesis_selector=selector,
+    elif any(dense):
+        try:
+            correspondences = load_correspondences(models, options, weights.dense)
+        except InputError as err:       # e.g. an object the dense net was not trained on
+            if log is not None:
+                log(f'tracking_in_place_pose_source {routes[1].pose_source} needs the dense '
+                    f'net ({err}); the frames detected in place take pose_source '
+                    f'{options.pose_source}')
+            routes, dense = routes[:1], dense[:1]
+    pipelines = [PosePipeline(models, route, detector,
+                              rotation if route.uses_qnet else None,
+                              hypothesis_selector=HypothesisSelector(
+                                  models, route, agreement if route.ranks_by_mask else None),
                               refiner=refiner, correspondences=correspondences if runs else None)
                  for route, runs in zip(routes, dense)]
-    if not options.tracking:
-        return pipelines[0]
-    return PoseTracker(*pipelines)
+    return PoseTracker(*pipelines) if options.tracking else pipelines[0]
 
 
 def load_correspondences(models: Mapping[str, ObjectModel], options: PipelineOptions,

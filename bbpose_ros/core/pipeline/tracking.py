@@ -47,8 +47,8 @@ tracking mode does, and answers with the frame's own detections instead of poses
 over a large motion. So is a stream's first frame (no period known yet): a single image is
 answered with its poses. A tracker given a second pipeline (``in_place``: the loader's
 ``tracking_in_place_pose_source`` route, slower and more accurate) detects with it instead
-where the period holds that route's run time too (learned the same way; tried once when
-not known yet).
+where the period holds that route's run time too (learned the same way; tried when not
+known yet, and again now and then where it did not fit).
 
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
@@ -89,6 +89,9 @@ STREAM_HEADROOM = 1.25
 STREAM_SMOOTHING = 0.2
 # Stamp steps outside (0, this] seconds are not a frame period (a jump in the stream).
 MAX_FRAME_PERIOD_S = 5.0
+# Where the in-place pipeline measured too slow for the frame period, every this many frames
+# detected in place try it again (a slow run may have been a passing load).
+IN_PLACE_RETRY_EVERY = 10
 
 
 @dataclass
@@ -126,6 +129,7 @@ class PoseTracker:
         self._frame_period_s: float | None = None     # running means, seconds
         self._pipeline_s: float | None = None
         self._in_place_s: float | None = None
+        self._in_place_skipped = 0      # frames detected in place without it since it ran
 
     @property
     def options(self) -> PipelineOptions:
@@ -148,7 +152,8 @@ class PoseTracker:
             self._background.stop()
         self.tracks.clear()
         self._since_detection = 0
-        self._last_frame = self._frame_period_s = None
+        # A new stream tries the in-place pipeline again (its one slow frame may be past).
+        self._last_frame = self._frame_period_s = self._in_place_s = None
 
     def close(self) -> None:
         """Reset and stop for good: later frames are answered by the tracks alone."""
@@ -206,22 +211,23 @@ class PoseTracker:
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            route = self._route_in_place()
-            if route is None:
+            here = self._pipeline_in_place()
+            if here is None:
                 self._background.hand(image_rgb, camera)
                 self._since_detection = 0
             elif self._background.idle:     # else the job in hand ends before long
-                untracked = self._detect_here(image_rgb, camera, timer, route)
+                untracked = self._detect_here(image_rgb, camera, timer, here)
                 self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
 
-    def _detect_here(self, image_rgb, camera, timer, route=None):
-        """Run a full pipeline on this frame, adopt its poses; return the untracked ones."""
-        route = route or self.pipeline
-        result = route.estimate(image_rgb, camera)
+    def _detect_here(self, image_rgb, camera, timer, pipeline=None):
+        """Detect here by ``pipeline`` (default ``self.pipeline``); return the untracked poses."""
+        if pipeline is None:
+            pipeline = self.pipeline
+        result = pipeline.estimate(image_rgb, camera)
         seconds = result.timings_ms['total'] * 1e-3
-        if route is self.pipeline:
+        if pipeline is self.pipeline:
             self._pipeline_s = self._observe(self._pipeline_s, seconds)
         else:
             self._in_place_s = self._observe(self._in_place_s, seconds)
@@ -247,24 +253,30 @@ class PoseTracker:
             return mean
         return value if mean is None else mean + STREAM_SMOOTHING * (value - mean)
 
-    def _route_in_place(self):
+    def _pipeline_in_place(self):
         """
         Return the pipeline to detect this frame with, or None: hand it on (stream mode).
 
         Where the frame period holds the full pipeline with headroom, the frame is detected
         in place: by ``in_place`` where the period holds its run time as well (or that is
-        not known yet), else by ``pipeline``. Before two stamps give a period (a stream's
-        first frame; ``reset`` starts a new stream) ``pipeline`` detects it: there is
-        nothing to answer from but the frame itself.
+        not known yet, or it was last tried ``IN_PLACE_RETRY_EVERY`` such frames ago: its
+        run time is then measured afresh), else by ``pipeline``. Before two stamps give a
+        period (a stream's first frame; ``reset`` starts a new stream) ``pipeline`` detects
+        it: there is nothing to answer from but the frame itself.
         """
         period = self._frame_period_s
         if period is None or self._pipeline_s is None:
             return self.pipeline
         if period <= STREAM_HEADROOM * self._pipeline_s:
             return None
-        if self.in_place is not None and (self._in_place_s is None
-                                          or period > STREAM_HEADROOM * self._in_place_s):
+        if self.in_place is None:
+            return self.pipeline
+        if self._in_place_skipped + 1 >= IN_PLACE_RETRY_EVERY:
+            self._in_place_s = None         # measured afresh
+        if self._in_place_s is None or period > STREAM_HEADROOM * self._in_place_s:
+            self._in_place_skipped = 0
             return self.in_place
+        self._in_place_skipped += 1
         return self.pipeline
 
     def _follow_tracks(self, image_rgb, camera):

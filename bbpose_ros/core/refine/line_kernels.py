@@ -190,15 +190,15 @@ OUTLINE_BANDS = 64
 
 
 @numba.njit(**_NUMBA)
-def _outline_bands(polygon, v_low, v_high, bands):
+def _outline_bands(polygon, v_low, per_band, bands):
     """
     Index a closed (P, 2) outline's edges by the horizontal bands of rows they span.
 
-    Band b covers v in [v_low + b * h, v_low + (b + 1) * h), h = (v_high - v_low) / bands
-    (v_high > v_low);
-    edge i joins vertex i - 1 (the last for i = 0) to vertex i. Each edge is listed in the
-    bands its rows touch and, as a margin for the rounding of a point's band, their
-    neighbours: a band lists every edge a point in it can cross (and a few it cannot).
+    A row v lies in band min(int((v - v_low) * per_band), bands - 1), the expression
+    ``hide_occluded`` places its points by; edge i joins vertex i - 1 (the last for i = 0)
+    to vertex i and is listed in the bands of its two ends' rows and those between. An edge
+    a point crosses (min(v_i, v_j) <= v < max(v_i, v_j)) is therefore listed in the point's
+    band: the expression never reverses the order of two rows.
 
     Returns:
         ((bands + 1,) int64 starts, (E,) int64 edges): band b's edges are
@@ -206,14 +206,13 @@ def _outline_bands(polygon, v_low, v_high, bands):
 
     """
     points = polygon.shape[0]
-    per_band = bands / (v_high - v_low)
     first, last = np.empty(points, dtype=np.int64), np.empty(points, dtype=np.int64)
     starts = np.zeros(bands + 1, dtype=np.int64)
     previous = points - 1
     for i in range(points):
         v_i, v_j = polygon[i, 1], polygon[previous, 1]
-        first[i] = max(int((min(v_i, v_j) - v_low) * per_band) - 1, 0)
-        last[i] = min(int((max(v_i, v_j) - v_low) * per_band) + 1, bands - 1)
+        first[i] = min(int((min(v_i, v_j) - v_low) * per_band), bands - 1)
+        last[i] = min(int((max(v_i, v_j) - v_low) * per_band), bands - 1)
         for b in range(first[i], last[i] + 1):
             starts[b + 1] += 1
         previous = i
@@ -266,10 +265,11 @@ def hide_occluded(centres, depths, instances, casts, in_front):
             continue
         u_low, u_high = centres[m, :, 0].min(), centres[m, :, 0].max()
         v_low, v_high = centres[m, :, 1].min(), centres[m, :, 1].max()
-        if not v_high > v_low:      # no area (or not finite): it covers nothing
-            continue
         per_band = OUTLINE_BANDS / (v_high - v_low)
-        starts, edges = _outline_bands(centres[m], v_low, v_high, OUTLINE_BANDS)
+        if not (v_high > v_low and math.isfinite(u_low + u_high + v_low + v_high)
+                and math.isfinite(per_band)):
+            continue        # no area, or not finite: it covers nothing
+        starts, edges = _outline_bands(centres[m], v_low, per_band, OUTLINE_BANDS)
         for n in range(count):
             if instances[m] == instances[n] or depths[m] >= depths[n]:
                 continue
