@@ -87,12 +87,16 @@ def build_node_pipeline(config: NodeConfig,
                          f'the shipped files): {err}') from err
     if log is not None:
         stages = getattr(pipeline, 'pipeline', pipeline)      # inside a PoseTracker
-        qnet = getattr(stages.rotation_estimator, 'precision', 'not used')
-        dense = getattr(stages.correspondences, 'precision', 'not used')
-        in_place = getattr(pipeline, 'in_place', None)     # stream mode's second route
-        if in_place is not None:
-            dense = getattr(in_place.correspondences, 'precision', dense)
-            dense += f' (frames detected in place: pose_source {in_place.options.pose_source})'
-        log(f'networks: detector {stages.detector.precision}, Q-Net {qnet}, dense net '
-            f'{dense} (inference_precision {config.options.inference_precision})')
+        in_place = getattr(pipeline, 'in_place', None)          # stream mode's second route
+        log(f'networks: detector {stages.detector.precision}, {_networks(stages)} '
+            f'(inference_precision {config.options.inference_precision})'
+            + ('' if in_place is None else f'; frames detected in place: pose_source '
+               f'{in_place.options.pose_source}, {_networks(in_place)}'))
     return NodePipeline(pipeline, MarkerArrayBuilder(models), DetectionsBuilder(models))
+
+
+def _networks(stages):
+    """Say how a PosePipeline runs Q-Net and the dense net ('not used' where it does not)."""
+    qnet = getattr(stages.rotation_estimator, 'precision', 'not used')
+    dense = getattr(stages.correspondences, 'precision', 'not used')
+    return f'Q-Net {qnet}, dense net {dense}'

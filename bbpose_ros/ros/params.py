@@ -94,7 +94,8 @@ PARAMETERS = {
         'bbpose_ros/weights.', 'configure', check=check_weights_file),
     'dense_weights': ParameterSpec(
         '', 'Dense correspondence net weights file (.pt), read when pose_source, dense_mask, '
-        'box_source or mask_consistency_weight uses it; empty: bbpose_ros/weights/dense.pt.',
+        'box_source, mask_consistency_weight or, in stream mode, tracking_in_place_pose_source '
+        'uses it; empty: bbpose_ros/weights/dense.pt.',
         'configure',
         check=check_weights_file),
     **{name: setting_spec(setting) for name, setting in SETTINGS.items()},

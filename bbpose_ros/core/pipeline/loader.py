@@ -91,8 +91,8 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         weights: the weight files.
         given: the stages the ground truth replaces.
         log: gets a line for each viewpoint model the refiner builds (once per mesh, then
-            cached), and one where stream mode's in-place route cannot load its dense net
-            (the frames detected in place then take ``pose_source``).
+            cached), and one where stream mode's in-place route cannot load the shipped
+            dense net (the frames detected in place then take ``pose_source``).
 
     Returns:
         A PosePipeline, or with ``options.tracking`` a PoseTracker around one (same
@@ -137,12 +137,12 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
                                                                       'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
     dense = [route.runs_dense(rotations_given=given.rotations) for route in routes]
-    if dense[0]:
+    if dense[0] or (any(dense) and weights.dense is not None):    # a named file must load
         correspondences = load_correspondences(models, options, weights.dense)
     elif any(dense):
         try:
-            correspondences = load_correspondences(models, options, weights.dense)
-        except InputError as err:       # e.g. an object the dense net was not trained on
+            correspondences = load_correspondences(models, options)
+        except InputError as err:       # e.g. an object the shipped net was not trained on
             if log is not None:
                 log(f'tracking_in_place_pose_source {routes[1].pose_source} needs the dense '
                     f'net ({err}); the frames detected in place take pose_source '

@@ -211,12 +211,12 @@ class PoseTracker:
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            here = self._pipeline_in_place()
-            if here is None:
+            if not self._camera_leaves_time():
                 self._background.hand(image_rgb, camera)
                 self._since_detection = 0
             elif self._background.idle:     # else the job in hand ends before long
-                untracked = self._detect_here(image_rgb, camera, timer, here)
+                untracked = self._detect_here(image_rgb, camera, timer,
+                                              self._pipeline_in_place())
                 self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
@@ -253,23 +253,26 @@ class PoseTracker:
             return mean
         return value if mean is None else mean + STREAM_SMOOTHING * (value - mean)
 
+    def _camera_leaves_time(self):
+        """
+        Tell whether the frame period holds the full pipeline with headroom (stream mode).
+
+        Before two stamps give a period (a stream's first frame; ``reset`` starts a new
+        stream) it does: there is nothing to answer from but the frame itself.
+        """
+        return self._frame_period_s is None or self._pipeline_s is None or \
+            self._frame_period_s > STREAM_HEADROOM * self._pipeline_s
+
     def _pipeline_in_place(self):
         """
-        Return the pipeline to detect this frame with, or None: hand it on (stream mode).
+        Return the pipeline that detects a frame in place (stream mode, the camera leaving time).
 
-        Where the frame period holds the full pipeline with headroom, the frame is detected
-        in place: by ``in_place`` where the period holds its run time as well (or that is
-        not known yet, or it was last tried ``IN_PLACE_RETRY_EVERY`` such frames ago: its
-        run time is then measured afresh), else by ``pipeline``. Before two stamps give a
-        period (a stream's first frame; ``reset`` starts a new stream) ``pipeline`` detects
-        it: there is nothing to answer from but the frame itself.
+        ``in_place`` where the frame period holds its run time with headroom, or that is not
+        known yet, or it was last tried ``IN_PLACE_RETRY_EVERY`` such frames ago (its run
+        time is then measured afresh); else, and before a period is known, ``pipeline``.
         """
         period = self._frame_period_s
-        if period is None or self._pipeline_s is None:
-            return self.pipeline
-        if period <= STREAM_HEADROOM * self._pipeline_s:
-            return None
-        if self.in_place is None:
+        if self.in_place is None or period is None:
             return self.pipeline
         if self._in_place_skipped + 1 >= IN_PLACE_RETRY_EVERY:
             self._in_place_s = None         # measured afresh
