@@ -137,12 +137,14 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
                                                                       'qnet'))
         rotation.warm_up(_warm_up_batch(models, options))
     dense = [route.runs_dense(rotations_given=given.rotations) for route in routes]
-    if dense[0] or (any(dense) and weights.dense is not None):    # a named file must load
-        correspondences = load_correspondences(models, options, weights.dense)
-    elif any(dense):
+    if any(dense):
         try:
-            correspondences = load_correspondences(models, options)
-        except InputError as err:       # e.g. an object the shipped net was not trained on
+            correspondences = load_correspondences(models, options, weights.dense)
+        except InputError as err:
+            # Only the in-place route gives way, and only with the shipped net (e.g. an
+            # object it was not trained on): a file the user names must load.
+            if dense[0] or weights.dense is not None:
+                raise
             if log is not None:
                 log(f'tracking_in_place_pose_source {routes[1].pose_source} needs the dense '
                     f'net ({err}); the frames detected in place take pose_source '
