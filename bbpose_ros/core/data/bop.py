@@ -33,6 +33,7 @@ from bbpose_ros.core.data.models import fallback_object_name, load_bop_models, M
     object_names, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
 from bbpose_ros.core.geometry.rotations import nearest_rotation
 
 
@@ -86,13 +87,20 @@ class GroundTruthInstance:
 
 @dataclass(frozen=True)
 class BopFrame:
-    """One image of a BOP scene with its camera and ground truth."""
+    """
+    One image of a BOP scene with its camera and ground truth.
+
+    ``world_from_camera``: (4, 4) the camera's pose in the scene's world frame, metres,
+    from BOP's optional ``cam_R_w2c`` / ``cam_t_w2c`` (world-to-camera, mm) in
+    ``scene_camera.json``; None where the scene has none.
+    """
 
     scene_id: int
     image_id: int
     image_path: Path
     camera: CameraIntrinsics
     instances: tuple[GroundTruthInstance, ...]
+    world_from_camera: np.ndarray | None = None
 
     def load_image(self) -> np.ndarray:
         """Read the image as (H, W, 3) uint8 RGB; a missing or unreadable file is named."""
@@ -142,6 +150,21 @@ def _optional_box(info, key, scene_dir, where):
     if isinstance(info, dict) and key not in info:
         return np.full(4, np.nan)
     return bop_box_to_uv(_field(info, key, scene_dir / 'scene_gt_info.json', where, (4,)))
+
+
+def _camera_pose(record, scene_dir, image_id):
+    """world_from_camera (4, 4) metres of a scene_camera record, None without the fields."""
+    if 'cam_R_w2c' not in record and 'cam_t_w2c' not in record:
+        return None
+    path, where = scene_dir / 'scene_camera.json', f'image {image_id}'
+    rotation = _field(record, 'cam_R_w2c', path, where, (3, 3))
+    translation = _field(record, 'cam_t_w2c', path, where, (3,)) * MM_TO_M
+    if not (np.all(np.isfinite(rotation)) and np.all(np.isfinite(translation))) or not \
+            np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or \
+            np.linalg.det(rotation) < 0:
+        raise InputError(f'{path}: {where} has a cam_R_w2c / cam_t_w2c that is not a finite '
+                         'rigid transform')
+    return invert_rigid(rigid_matrix(rotation, translation))
 
 
 def split_names(root: Path | str) -> list[str]:
@@ -219,7 +242,8 @@ class BopDataset:
             instances = self._instances(scene_dir, key, gts.get(key, []), infos.get(key, []),
                                         self.names)
             frames.append(BopFrame(scene_id, image_id, self._image_path(scene_dir, image_id),
-                                   camera, instances))
+                                   camera, instances,
+                                   _camera_pose(cameras[key], scene_dir, image_id)))
         return frames
 
     @staticmethod

@@ -274,7 +274,8 @@ def source_summary(scores: Mapping[str, Sequence[InstanceScore]]) -> dict[str, A
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
                  rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True,
                  perturb: tuple[float, float] | None = None, seed: int = 0,
-                 perturb_direction: str = 'random'
+                 perturb_direction: str = 'random', fuse: str = 'none',
+                 camera_poses: Sequence[np.ndarray] | None = None
                  ) -> tuple[dict[str, list[InstanceScore]], list[dict[str, float]]]:
     """
     Run the pipeline over BOP frames and score every counted instance.
@@ -294,6 +295,9 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
         perturb_direction: how the translation is moved, ``rotations.PERTURB_DIRECTIONS``:
             'random' (any direction) or 'ray' (along the viewing ray, as a box of the wrong
             size moves it).
+        fuse: 'none' scores each frame's own poses; 'causal' or 'final' the map of its
+            scene (``fusion.fused_poses``), built from ``camera_poses``.
+        camera_poses: with ``fuse``, each frame's (4, 4) world_from_camera.
 
     Returns:
         ({name: [InstanceScore]}, [per-frame stage timings in ms]).
@@ -302,35 +306,52 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
     if perturb is not None and (boxes != 'gt' or rotation != 'gt'):
         raise InputError('perturbing the ground truth needs ground-truth boxes and rotations')
     rng = np.random.default_rng(seed)
+    results = [_estimate_frame(pipeline, frame, _counted(frame, pipeline.models, min_visib),
+                               boxes, rotation, perturb, rng, perturb_direction)
+               for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress)]
+    poses = [result.poses for result in results]
+    if fuse != 'none':
+        from bbpose_ros.core.eval.fusion import fused_poses
+        poses = fused_poses(frames, poses, camera_poses, pipeline.models, pipeline.options,
+                            fuse)
     scores = {name: [] for name in pipeline.models}
-    timings = []
-    for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress):
-        indices = [k for k, i in enumerate(frame.instances)
-                   if i.object_name in pipeline.models and i.visib_fract >= min_visib]
+    for frame, frame_poses in zip(frames, poses):
+        indices = _counted(frame, pipeline.models, min_visib)
         counted = [frame.instances[k] for k in indices]
-        image = frame.load_image()
-        detections = ground_truth_detections(counted) if boxes == 'gt' else None
-        if rotation == 'gt':
-            if detections is None:
-                detections = pipeline.detector(image)
-            detections = [d for d in detections if d.object_name in pipeline.models]
-            truths = _match_to_truth(detections, frame.instances)
-            keep = [k for k, t in enumerate(truths) if t is not None]
-            detections = [detections[k] for k in keep]
-            rotations = np.array([truths[k].rotation for k in keep]).reshape(-1, 3, 3)
-            if perturb is None:
-                result = pipeline.estimate(image, frame.camera, detections, rotations)
-            else:
-                result = refine_perturbed(pipeline, image, frame.camera, detections,
-                                          [truths[k] for k in keep], perturb, rng,
-                                          perturb_direction)
-        else:
-            result = pipeline.estimate(image, frame.camera, detections)
-        timings.append(result.timings_ms)
-        for k, score in zip(indices, score_frame(pipeline.models, counted, result.poses,
+        for k, score in zip(indices, score_frame(pipeline.models, counted, frame_poses,
                                                  frame.camera)):
             scores[score.object_name].append(replace(score, key=instance_key(frame, k)))
-    return scores, timings
+    return scores, [result.timings_ms for result in results]
+
+
+def _counted(frame, models, min_visib):
+    """Indices of the frame's ground-truth instances that count (modelled, visible enough)."""
+    return [k for k, i in enumerate(frame.instances)
+            if i.object_name in models and i.visib_fract >= min_visib]
+
+
+def _estimate_frame(pipeline, frame, indices, boxes, rotation, perturb, rng, perturb_direction):
+    """Run the pipeline (or its oracles, see score_frames) on one frame: its FrameResult."""
+    counted = [frame.instances[k] for k in indices]
+    image = frame.load_image()
+    detections = ground_truth_detections(counted) if boxes == 'gt' else None
+    if rotation == 'gt':
+        if detections is None:
+            detections = pipeline.detector(image)
+        detections = [d for d in detections if d.object_name in pipeline.models]
+        truths = _match_to_truth(detections, frame.instances)
+        keep = [k for k, t in enumerate(truths) if t is not None]
+        detections = [detections[k] for k in keep]
+        rotations = np.array([truths[k].rotation for k in keep]).reshape(-1, 3, 3)
+        if perturb is None:
+            result = pipeline.estimate(image, frame.camera, detections, rotations)
+        else:
+            result = refine_perturbed(pipeline, image, frame.camera, detections,
+                                      [truths[k] for k in keep], perturb, rng,
+                                      perturb_direction)
+    else:
+        result = pipeline.estimate(image, frame.camera, detections)
+    return result
 
 
 def refine_perturbed(pipeline: PosePipeline, image_rgb: np.ndarray, camera: CameraIntrinsics,

@@ -148,6 +148,25 @@ class PipelineOptions:
         'dense+qnet', 'In stream mode, the pose_source of a frame detected in the frame itself '
         "when the camera's frame period holds that route's run time (a slow camera); "
         "otherwise, and for a stream's first frame, pose_source.", choices=POSE_SOURCES)
+    map_depth_sigma: float = _setting(
+        0.04, "The map's model of one view: the standard deviation of its depth along the "
+        'viewing ray, as a fraction of the distance.', 0.001, 1.0)
+    map_across_sigma_px: float = _setting(
+        2.0, "The same across the ray, pixels at the object's distance.", 0.01, 100.0)
+    map_camera_sigma_mm: float = _setting(
+        2.0, "Standard deviation of the camera pose's position error (the TF's: kinematics, "
+        'hand-eye calibration, odometry), millimetres, in the map.', 0.0, 1000.0)
+    map_camera_sigma_deg: float = _setting(
+        0.2, 'The same of its rotation error, degrees.', 0.0, 90.0)
+    map_gate_deg: float = _setting(
+        15.0, 'Two views of an object agree in the map when their rotations are within this '
+        '(and their translations within the 99 % ellipsoid of their covariances), degrees.',
+        0.1, 180.0)
+    map_window: int = _setting(
+        30, 'Most views of an object the map fuses (the newest).', 1, 1000)
+    map_move_views: int = _setting(
+        3, 'An object is moved when this many of its newest views agree with each other and '
+        'not with the map: its older views are dropped.', 1, 100)
     inference_backend: str = _setting(
         'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         choices=BACKENDS)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SOURCES = ('qnet', 'pnp', 'pnp_rotation', 'given')
+SOURCES = ('qnet', 'pnp', 'pnp_rotation', 'given', 'map')
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ class PoseEstimate:
             Bounding Box Equation, the paper's path), 'pnp' (PnP over the dense
             correspondences, rotation and translation), 'pnp_rotation' (PnP's rotation and
             the Bounding Box Equation's translation), 'given' (rotations handed in: ground
-            truth, a track).
+            truth, a track), 'map' (the scene's map, ``core.scene.object_map``).
 
     """
 

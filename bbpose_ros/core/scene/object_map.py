@@ -1,0 +1,235 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+The map of a static scene: each object's pose in a fixed frame, fused over the views.
+
+Each image comes with the camera's pose in the fixed frame (the robot's TF). Every pose
+the pipeline finds in it becomes a ``ViewedPose`` there (``views.view_in_world``), and the
+object's last ``map_window`` views are fused by consensus (``consensus.fuse_views``): rays
+from different directions fix the depth one view cannot see. An object is one entry per
+name (the image's most confident pose of it is taken, others are left to the per-frame
+output). An object that was moved shows as views agreeing with each other but not with
+the map: when the newest ``map_move_views`` views are all such, the older ones are
+dropped and the entry starts afresh from them. An object out of view or hidden keeps its
+pose, and its age grows (the stamp it was last seen at).
+
+``poses_in_view`` expresses the map in one image's camera frame: where that image saw the
+object and agrees with the map, the two are fused in the camera frame (the view is precise
+across its ray and knows nothing of the camera's pose error; the map knows the depth), so
+the camera's error does not move the pose across the ray.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.projection import projected_box_uv
+from bbpose_ros.core.geometry.rigid import invert_rigid, is_rigid
+from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.scene.consensus import agreement, fuse_views, FusedPose
+from bbpose_ros.core.scene.views import camera_covariance, ray_covariance, view_in_world
+from bbpose_ros.core.scene.views import ViewedPose
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.data.models import ObjectModel
+
+# Tenths of the diameter: the translation error a map entry's confidence is the chance of
+# staying within (the ADD(-S) threshold).
+TOLERANCE_DIAMETERS = 0.1
+
+
+@dataclass(frozen=True)
+class MapObject:
+    """
+    One object of the map, in the fixed frame.
+
+    Attributes:
+        object_name: e.g. 'ape'.
+        rotation: (3, 3) model-to-world rotation.
+        translation: (3,) metres.
+        covariance: (3, 3) the translation's covariance, square metres.
+        confidence: 0..1 (``consensus.FusedPose.confidence``).
+        views: how many views the pose is fused from.
+        first_seen_ns: stamp of the oldest view kept (where the entry started afresh).
+        last_seen_ns: stamp of the newest view that agrees with the pose.
+
+    """
+
+    object_name: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    covariance: np.ndarray
+    confidence: float
+    views: int
+    first_seen_ns: int
+    last_seen_ns: int
+
+    def age_s(self, now_ns: int) -> float:
+        """Seconds since the object was last seen to agree with its pose."""
+        return (now_ns - self.last_seen_ns) * 1e-9
+
+
+class _Entry:
+    """An object's kept views and the pose fused from them."""
+
+    def __init__(self, window: int) -> None:
+        self.views: deque[ViewedPose] = deque(maxlen=window)
+        self.fused: FusedPose | None = None
+
+
+class ObjectMap:
+    """
+    Each object's pose in the fixed frame, fused over views (see the module docstring).
+
+    ``models``: the objects' models (their symmetries and diameters); ``options``: the
+    ``map_*`` settings.
+    """
+
+    def __init__(self, models: Mapping[str, ObjectModel], options: PipelineOptions) -> None:
+        self.models = models
+        self.options = options
+        self._entries: dict[str, _Entry] = {}
+        self._view_count = 0
+
+    def clear(self) -> None:
+        """Forget every object (a new scene)."""
+        self._entries.clear()
+
+    def add_view(self, stamp_ns: int, world_from_camera: np.ndarray,
+                 camera: CameraIntrinsics, poses: Sequence[PoseEstimate]) -> int:
+        """
+        Take one image's poses (camera frame), seen from ``world_from_camera`` (4, 4).
+
+        Returns the view's index (for ``poses_in_view``). Raises InputError when the camera
+        pose is not a finite rigid transform: nothing is added then.
+        """
+        world_from_camera = _checked(world_from_camera)
+        focal = 0.5 * (camera.fx + camera.fy)
+        view = self._view_count
+        self._view_count += 1
+        for pose in _most_confident(poses, self.models):
+            entry = self._entries.setdefault(pose.object_name, _Entry(self.options.map_window))
+            entry.views.append(view_in_world(
+                pose.object_name, view, stamp_ns, world_from_camera, pose.rotation,
+                pose.translation, pose.confidence, focal, self.options))
+            self._refit(pose.object_name, entry)
+        return view
+
+    def _refit(self, name, entry):
+        model = self.models[name]
+        tolerance = TOLERANCE_DIAMETERS * model.diameter
+        symmetries = model.symmetry_transforms
+        entry.fused = fuse_views(list(entry.views), symmetries, self.options, tolerance)
+        recent = list(entry.views)[-self.options.map_move_views:]
+        moved = len(recent) == self.options.map_move_views and len(entry.views) > len(recent) \
+            and not entry.fused.inliers[-len(recent):].any() \
+            and agreement(recent, symmetries, self.options).all()
+        if moved:
+            entry.views = deque(recent, maxlen=self.options.map_window)
+            entry.fused = fuse_views(recent, symmetries, self.options, tolerance)
+
+    def objects(self) -> list[MapObject]:
+        """The map's objects, by name."""
+        found = []
+        for name in sorted(self._entries):
+            entry = self._entries[name]
+            fused, views = entry.fused, list(entry.views)
+            seen = [v.stamp_ns for v, inlier in zip(views, fused.inliers) if inlier]
+            found.append(MapObject(name, fused.rotation, fused.translation, fused.covariance,
+                                   fused.confidence, int(fused.inliers.sum()),
+                                   views[0].stamp_ns, max(seen)))
+        return found
+
+    def poses_in_view(self, world_from_camera: np.ndarray, camera: CameraIntrinsics,
+                      poses: Sequence[PoseEstimate] = (),
+                      view: int | None = None) -> list[PoseEstimate]:
+        """
+        The map's objects in one image's camera frame, those in front of it and in the image.
+
+        ``poses``: that image's own poses (camera frame) and ``view`` its index from
+        ``add_view``: where the map still holds that view as agreeing with it, the image's
+        pose is fused with the map's (see the module docstring) and its detection kept.
+        Each pose's source is 'map' and its confidence the map's.
+        """
+        camera_from_world = invert_rigid(_checked(world_from_camera))
+        own = {p.object_name: p for p in _most_confident(poses, self.models)}
+        found = []
+        for item in self.objects():
+            rotation = camera_from_world[:3, :3] @ item.rotation
+            translation = camera_from_world[:3, :3] @ item.translation + camera_from_world[:3, 3]
+            box = _box_in_image(self.models[item.object_name], camera, rotation, translation)
+            if box is None:
+                continue
+            seen = own.get(item.object_name)
+            detection = Detection(item.object_name, item.confidence, box)
+            if seen is not None and view is not None and self._agrees(item.object_name, view):
+                translation = self._anchored(camera_from_world, item, translation, seen, camera)
+                detection = seen.detection
+            found.append(PoseEstimate(detection, rotation, translation, item.confidence, 'map'))
+        return found
+
+    def _agrees(self, name, view):
+        """Tell whether the map holds the object's view ``view`` as agreeing with it."""
+        entry = self._entries[name]
+        return any(kept.view == view and bool(inlier)
+                   for kept, inlier in zip(entry.views, entry.fused.inliers))
+
+    def _anchored(self, camera_from_world, item, translation, seen, camera):
+        """Fuse the map's translation (camera frame) with the view's own, by covariance."""
+        rotation_cw = camera_from_world[:3, :3]
+        distance = float(np.linalg.norm(translation))
+        prior = rotation_cw @ item.covariance @ rotation_cw.T + \
+            camera_covariance(distance, self.options) * np.eye(3)
+        measured = ray_covariance(seen.translation, 0.5 * (camera.fx + camera.fy), self.options)
+        prior_info, measured_info = np.linalg.inv(prior), np.linalg.inv(measured)
+        return np.linalg.solve(prior_info + measured_info,
+                               prior_info @ translation + measured_info @ seen.translation)
+
+
+def _checked(world_from_camera):
+    matrix = np.asarray(world_from_camera, dtype=float)
+    if not is_rigid(matrix, tolerance=1e-4):
+        raise InputError('camera pose: not a finite rigid transform (4 x 4, orthonormal '
+                         'rotation, last row 0 0 0 1)')
+    return matrix
+
+
+def _most_confident(poses, models):
+    """The most confident pose of each object the map has a model of."""
+    best = {}
+    for pose in poses:
+        if pose.object_name in models and np.all(np.isfinite(pose.translation)) and (
+                pose.object_name not in best or pose.confidence > best[pose.object_name].confidence):
+            best[pose.object_name] = pose
+    return list(best.values())
+
+
+def _box_in_image(model, camera, rotation, translation):
+    """The model's projected box where it is in front of the camera and overlaps the image."""
+    try:
+        box = projected_box_uv(camera, model.hull_points, rotation, translation)
+    except InputError:
+        return None
+    inside = box[0] < camera.width and box[1] < camera.height and box[2] > 0 and box[3] > 0
+    return box if inside else None

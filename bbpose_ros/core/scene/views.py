@@ -1,0 +1,114 @@
+# Copyright 2026 bbpose_ros developers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+One view of an object as the map takes it: its pose in the fixed frame and how sure it is.
+
+A single RGB view places an object well across its viewing ray (the silhouette fits to a
+pixel or two) and poorly along it (a box a few per cent too large or small moves the depth
+as much). A view's translation covariance is therefore long along the ray and short across
+it, and the camera's own pose error (the robot's TF) adds to it in every direction: a
+camera rotation error moves the object by the angle times its distance. Views from
+different directions intersect their rays; ``consensus`` fuses them by these covariances.
+
+Frames: ``world`` is the map's fixed frame, ``camera`` the optical frame of the image
+(z forward). Units: metres, radians inside, millimetres and degrees where a setting's name
+says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bbpose_ros.core.inference.options import PipelineOptions
+
+MM = 1e-3
+
+
+@dataclass(frozen=True)
+class ViewedPose:
+    """
+    An object's pose seen in one view, in the fixed frame.
+
+    Attributes:
+        object_name: e.g. 'ape'.
+        view: index of the view in the map's sequence (0, 1, ...).
+        stamp_ns: the image's stamp, nanoseconds.
+        rotation: (3, 3) model-to-world rotation.
+        translation: (3,) the model origin in the world frame, metres.
+        covariance: (3, 3) translation covariance in the world frame, square metres (the
+            view's ray model plus the camera's pose error).
+        camera_position: (3,) the camera's optical centre in the world frame, metres.
+        confidence: the pose's confidence (0..1, ``PoseEstimate.confidence``).
+
+    """
+
+    object_name: str
+    view: int
+    stamp_ns: int
+    rotation: np.ndarray
+    translation: np.ndarray
+    covariance: np.ndarray
+    camera_position: np.ndarray
+    confidence: float
+
+
+def ray_covariance(translation_camera: np.ndarray, focal_px: float,
+                   options: PipelineOptions) -> np.ndarray:
+    """
+    Covariance (3, 3) of one view's translation in the camera frame, square metres.
+
+    Along the ray through the model origin the standard deviation is ``map_depth_sigma``
+    times the distance; across it ``map_across_sigma_px`` pixels at that distance
+    (``focal_px``: the camera's mean focal length in pixels).
+    """
+    distance = float(np.linalg.norm(translation_camera))
+    ray = translation_camera / max(distance, 1e-9)
+    along = (options.map_depth_sigma * distance) ** 2
+    across = (options.map_across_sigma_px * distance / focal_px) ** 2
+    return across * np.eye(3) + (along - across) * np.outer(ray, ray)
+
+
+def camera_covariance(distance_m: float, options: PipelineOptions) -> float:
+    """
+    Variance (square metres, each axis) the camera's pose error adds to a point.
+
+    The error of the camera's position (``map_camera_sigma_mm``) and of its rotation
+    (``map_camera_sigma_deg``, times the point's distance from the camera).
+    """
+    return (options.map_camera_sigma_mm * MM) ** 2 + \
+        (np.deg2rad(options.map_camera_sigma_deg) * distance_m) ** 2
+
+
+def view_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera: np.ndarray,
+                  rotation_camera: np.ndarray, translation_camera: np.ndarray,
+                  confidence: float, focal_px: float,
+                  options: PipelineOptions) -> ViewedPose:
+    """
+    Carry a pose from the camera frame into the fixed frame, with its covariance.
+
+    ``world_from_camera``: (4, 4) the camera's pose in the fixed frame at the image's stamp;
+    ``rotation_camera`` (3, 3) and ``translation_camera`` (3,) metres: the model-to-camera
+    pose.
+    """
+    rotation_wc, position = world_from_camera[:3, :3], world_from_camera[:3, 3]
+    distance = float(np.linalg.norm(translation_camera))
+    covariance = rotation_wc @ ray_covariance(translation_camera, focal_px, options) \
+        @ rotation_wc.T + camera_covariance(distance, options) * np.eye(3)
+    return ViewedPose(object_name, view, stamp_ns, rotation_wc @ rotation_camera,
+                      rotation_wc @ translation_camera + position, covariance,
+                      position.copy(), float(confidence))
