@@ -77,6 +77,10 @@ class PoseEstimate:
             correspondences, rotation and translation), 'pnp_rotation' (PnP's rotation and
             the Bounding Box Equation's translation), 'given' (rotations handed in: ground
             truth, a track), 'map' (the scene's map, ``core.scene.object_map``).
+        alternatives: the detection's other refined candidates, best first, as (rotation
+            (3, 3), translation (3,) metres, refinement score) after the screening
+            iterations (``PoseRefiner.best_of``): what a map can choose from where views
+            disagree; empty when there were none.
 
     """
 
@@ -85,6 +89,7 @@ class PoseEstimate:
     translation: np.ndarray
     refinement_score: float | None = None
     source: str = 'qnet'
+    alternatives: tuple[tuple[np.ndarray, np.ndarray, float], ...] = ()
 
     @property
     def object_name(self) -> str:

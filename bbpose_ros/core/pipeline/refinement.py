@@ -176,7 +176,12 @@ class PoseRefiner:
                 continue
             pose, result, _ = chosen[k]
             if result.score >= self.options.refine_min_score:
-                refined.append(with_refinement(pose, result))
+                others = sorted(((merit, r) for (j, p), r, merit in zip(jobs, results, merits)
+                                 if j == k and p is not pose and r.ok),
+                                key=lambda item: -item[0])
+                refined.append(dataclasses.replace(
+                    with_refinement(pose, result),
+                    alternatives=tuple((r.rotation, r.translation, r.score) for _, r in others)))
         return refined
 
     def _merits(self, camera, detections, names, poses, scores, choice_masks):

@@ -16,13 +16,16 @@
 """
 Fusing the views of one object: which views agree, and the pose they agree on.
 
-Two views agree when their rotations are within ``map_gate_deg`` of each other (for a
-symmetric object, under the symmetry that brings them closest) and their translations
-within the 99 % ellipsoid of their summed covariances (``views.ray_covariance``). The view
-most others agree with, weighted by confidence, seeds a consensus; the views agreeing with
-it are fused: translations by their information (inverse covariance) matrices, so rays
-from different directions intersect, rotations by their confidence-weighted chordal mean.
-The views agreeing with that fused pose are fused once more.
+A view may offer several candidate poses (the pipeline's chosen pose and its other refined
+candidates, ``PoseEstimate.alternatives``); each view gives at most one of them to the
+consensus. Two candidates of different views agree when their rotations are within
+``map_gate_deg`` of each other (for a symmetric object, under the symmetry that brings them
+closest) and their translations within the 99 % ellipsoid of their summed covariances
+(``views.ray_covariance``). The candidate the most views agree with, each view counting its
+most confident agreeing candidate, seeds a consensus; those agreeing candidates are fused:
+translations by their information (inverse covariance) matrices, so rays from different
+directions intersect, rotations by their confidence-weighted chordal mean. The candidates
+agreeing with that fused pose (again one a view) are fused once more.
 
 Symmetry transforms are (S, 4, 4), identity first (``ObjectModel.symmetry_transforms``):
 a pose (R, t) equals (R @ S_R, R @ S_t + t) for each.
@@ -97,7 +100,7 @@ def _mahalanobis2(delta, covariance):
 
 def agreement(views: Sequence[ViewedPose], symmetries: np.ndarray,
               options: PipelineOptions) -> np.ndarray:
-    """(N, N) bool: which pairs of views agree (see the module docstring); True on the diagonal."""
+    """(N, N) bool: which pairs of poses agree (module docstring); True on the diagonal."""
     rotations, translations, covariances, _ = _stack(views, symmetries)
     copies_r, copies_t = _symmetric_copies(rotations, translations, symmetries)
     traces = np.einsum('iab,jsab->ijs', rotations, copies_r)
@@ -126,33 +129,46 @@ def _fuse(rotations, translations, covariances, weights, reference_r, symmetries
     return rotation, translation, np.linalg.inv(information.sum(0))
 
 
+def _one_a_view(candidates, weights, groups):
+    """(N,) bool: of the ``candidates`` (N,) bool, the most confident of each view group."""
+    score = np.where(candidates, weights, -1.0)
+    best = np.zeros(len(groups), dtype=bool)
+    for view in np.unique(groups[candidates]):
+        members = np.flatnonzero(groups == view)
+        best[members[np.argmax(score[members])]] = True
+    return best
+
+
 def fuse_views(views: Sequence[ViewedPose], symmetries: np.ndarray, options: PipelineOptions,
                tolerance_m: float) -> FusedPose:
     """
-    Fuse an object's views into one pose (see the module docstring).
+    Fuse an object's views' candidate poses into one pose (see the module docstring).
 
+    ``views``: the candidates, those of one view consecutive and sharing its ``view``;
     ``tolerance_m``: the translation error the confidence is the chance of staying within
     (the object's ADD(-S) threshold, a tenth of its diameter).
     """
     rotations, translations, covariances, weights = _stack(views, symmetries)
-    agree = agreement(views, symmetries, options)
-    support = agree.astype(float) @ weights
+    groups = np.array([v.view for v in views])
+    agree = agreement(views, symmetries, options) & \
+        ((groups[:, None] != groups[None]) | np.eye(len(views), dtype=bool))
+    starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
+    support = np.maximum.reduceat(agree * weights[None], starts, axis=1).sum(1)
     seed = int(np.flatnonzero(support == support.max())[-1])     # ties: the newest view
-    inliers = agree[seed]
+    inliers = _one_a_view(agree[seed], weights, groups)
     rotation, translation, covariance = _fuse(
         rotations[inliers], translations[inliers], covariances[inliers], weights[inliers],
         rotations[seed], symmetries)
     copies_r, copies_t = _symmetric_copies(rotations, translations, symmetries)
     best, angle = _closest(rotation, copies_r)
     delta = copies_t[np.arange(len(views)), best] - translation
-    inliers = (angle < options.map_gate_deg) & \
+    agreeing = (angle < options.map_gate_deg) & \
         (_mahalanobis2(delta, covariances + covariance) < CHI2_3DOF_99)
-    if inliers.any():
+    if agreeing.any():
+        inliers = _one_a_view(agreeing, weights, groups)
         rotation, translation, covariance = _fuse(
             rotations[inliers], translations[inliers], covariances[inliers],
             weights[inliers], rotation, symmetries)
-    else:
-        inliers = agree[seed]
     worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(covariance)[-1]), 1e-12))
     within = math.erf(tolerance_m / (math.sqrt(2.0) * worst_sigma))
     return FusedPose(rotation, translation, covariance, inliers,

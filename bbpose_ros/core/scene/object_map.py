@@ -17,14 +17,16 @@
 The map of a static scene: each object's pose in a fixed frame, fused over the views.
 
 Each image comes with the camera's pose in the fixed frame (the robot's TF). Every pose
-the pipeline finds in it becomes a ``ViewedPose`` there (``views.view_in_world``), and the
-object's last ``map_window`` views are fused by consensus (``consensus.fuse_views``): rays
-from different directions fix the depth one view cannot see. An object is one entry per
-name (the image's most confident pose of it is taken, others are left to the per-frame
-output). An object that was moved shows as views agreeing with each other but not with
-the map: when the newest ``map_move_views`` views are all such, the older ones are
-dropped and the entry starts afresh from them. An object out of view or hidden keeps its
-pose, and its age grows (the stamp it was last seen at).
+the pipeline finds in it, with its other refined candidates (``PoseEstimate.alternatives``,
+weighed ``ALTERNATIVE_WEIGHT`` times less), becomes a ``ViewedPose`` there
+(``views.view_in_world``), and the object's last ``map_window`` views are fused by
+consensus (``consensus.fuse_views``): rays from different directions fix the depth one
+view cannot see, and the views choose among each other's candidates the rotation they
+share. An object is one entry per name (the image's most confident pose of it is taken,
+others are left to the per-frame output). An object that was moved shows as views
+agreeing with each other but not with the map: when the newest ``map_move_views`` views
+are all such, the older ones are dropped and the entry starts afresh from them. An object
+out of view or hidden keeps its pose, and its age grows (the stamp it was last seen at).
 
 ``poses_in_view`` expresses the map in one image's camera frame: where that image saw the
 object and agrees with the map, the two are fused in the camera frame (the view is precise
@@ -57,6 +59,9 @@ if TYPE_CHECKING:
 # Tenths of the diameter: the translation error a map entry's confidence is the chance of
 # staying within (the ADD(-S) threshold).
 TOLERANCE_DIAMETERS = 0.1
+# How much a pipeline's second choices (``PoseEstimate.alternatives``) weigh beside its
+# chosen pose: enough to win where other views agree with them, never alone.
+ALTERNATIVE_WEIGHT = 0.5
 
 
 @dataclass(frozen=True)
@@ -91,11 +96,20 @@ class MapObject:
 
 
 class _Entry:
-    """An object's kept views and the pose fused from them."""
+    """An object's kept views (each a list of candidate ViewedPoses) and their fused pose."""
 
     def __init__(self, window: int) -> None:
-        self.views: deque[ViewedPose] = deque(maxlen=window)
+        self.views: deque[list[ViewedPose]] = deque(maxlen=window)
         self.fused: FusedPose | None = None
+
+    @property
+    def candidates(self) -> list[ViewedPose]:
+        """Every kept candidate, view by view."""
+        return [candidate for view in self.views for candidate in view]
+
+    def inlier_candidates(self) -> list[ViewedPose]:
+        """The candidates the fused pose was made of (one a view at most)."""
+        return [c for c, inlier in zip(self.candidates, self.fused.inliers) if inlier]
 
 
 class ObjectMap:
@@ -130,9 +144,10 @@ class ObjectMap:
         self._view_count += 1
         for pose in _most_confident(poses, self.models):
             entry = self._entries.setdefault(pose.object_name, _Entry(self.options.map_window))
-            entry.views.append(view_in_world(
-                pose.object_name, view, stamp_ns, world_from_camera, pose.rotation,
-                pose.translation, pose.confidence, focal, self.options))
+            entry.views.append([
+                view_in_world(pose.object_name, view, stamp_ns, world_from_camera, rotation,
+                              translation, weight, focal, self.options)
+                for rotation, translation, weight in _candidates(pose)])
             self._refit(pose.object_name, entry)
         return view
 
@@ -140,25 +155,26 @@ class ObjectMap:
         model = self.models[name]
         tolerance = TOLERANCE_DIAMETERS * model.diameter
         symmetries = model.symmetry_transforms
-        entry.fused = fuse_views(list(entry.views), symmetries, self.options, tolerance)
+        entry.fused = fuse_views(entry.candidates, symmetries, self.options, tolerance)
         recent = list(entry.views)[-self.options.map_move_views:]
-        moved = len(recent) == self.options.map_move_views and len(entry.views) > len(recent) \
-            and not entry.fused.inliers[-len(recent):].any() \
-            and agreement(recent, symmetries, self.options).all()
-        if moved:
+        if len(recent) < self.options.map_move_views or len(entry.views) == len(recent):
+            return
+        seen_recently = {c.view for c in entry.inlier_candidates()} & {v[0].view for v in recent}
+        if not seen_recently and agreement([v[0] for v in recent], symmetries,
+                                           self.options).all():
             entry.views = deque(recent, maxlen=self.options.map_window)
-            entry.fused = fuse_views(recent, symmetries, self.options, tolerance)
+            entry.fused = fuse_views(entry.candidates, symmetries, self.options, tolerance)
 
     def objects(self) -> list[MapObject]:
         """The map's objects, by name."""
         found = []
         for name in sorted(self._entries):
             entry = self._entries[name]
-            fused, views = entry.fused, list(entry.views)
-            seen = [v.stamp_ns for v, inlier in zip(views, fused.inliers) if inlier]
+            fused = entry.fused
             found.append(MapObject(name, fused.rotation, fused.translation, fused.covariance,
                                    fused.confidence, int(fused.inliers.sum()),
-                                   views[0].stamp_ns, max(seen)))
+                                   entry.views[0][0].stamp_ns,
+                                   max(c.stamp_ns for c in entry.inlier_candidates())))
         return found
 
     def poses_in_view(self, world_from_camera: np.ndarray, camera: CameraIntrinsics,
@@ -181,30 +197,32 @@ class ObjectMap:
             box = _box_in_image(self.models[item.object_name], camera, rotation, translation)
             if box is None:
                 continue
-            seen = own.get(item.object_name)
+            anchor = None if view is None else self._inlier_of(item.object_name, view)
             detection = Detection(item.object_name, item.confidence, box)
-            if seen is not None and view is not None and self._agrees(item.object_name, view):
-                translation = self._anchored(camera_from_world, item, translation, seen, camera)
-                detection = seen.detection
+            if anchor is not None:
+                translation = self._anchored(camera_from_world, item, translation, anchor,
+                                             camera)
+                if item.object_name in own:
+                    detection = own[item.object_name].detection
             found.append(PoseEstimate(detection, rotation, translation, item.confidence, 'map'))
         return found
 
-    def _agrees(self, name, view):
-        """Tell whether the map holds the object's view ``view`` as agreeing with it."""
-        entry = self._entries[name]
-        return any(kept.view == view and bool(inlier)
-                   for kept, inlier in zip(entry.views, entry.fused.inliers))
+    def _inlier_of(self, name, view):
+        """The object's candidate of view ``view`` the fused pose holds, or None."""
+        return next((c for c in self._entries[name].inlier_candidates() if c.view == view),
+                    None)
 
-    def _anchored(self, camera_from_world, item, translation, seen, camera):
+    def _anchored(self, camera_from_world, item, translation, anchor, camera):
         """Fuse the map's translation (camera frame) with the view's own, by covariance."""
         rotation_cw = camera_from_world[:3, :3]
         distance = float(np.linalg.norm(translation))
         prior = rotation_cw @ item.covariance @ rotation_cw.T + \
             camera_covariance(distance, self.options) * np.eye(3)
-        measured = ray_covariance(seen.translation, 0.5 * (camera.fx + camera.fy), self.options)
+        measured = ray_covariance(anchor.translation_camera, 0.5 * (camera.fx + camera.fy),
+                                  self.options)
         prior_info, measured_info = np.linalg.inv(prior), np.linalg.inv(measured)
         return np.linalg.solve(prior_info + measured_info,
-                               prior_info @ translation + measured_info @ seen.translation)
+                               prior_info @ translation + measured_info @ anchor.translation_camera)
 
 
 def _checked(world_from_camera):
@@ -213,6 +231,14 @@ def _checked(world_from_camera):
         raise InputError('camera pose: not a finite rigid transform (4 x 4, orthonormal '
                          'rotation, last row 0 0 0 1)')
     return matrix
+
+
+def _candidates(pose):
+    """(rotation, translation, weight) of a pose and its alternatives (camera frame)."""
+    return [(pose.rotation, pose.translation, pose.confidence)] + [
+        (rotation, translation, ALTERNATIVE_WEIGHT * score)
+        for rotation, translation, score in pose.alternatives
+        if np.all(np.isfinite(translation))]
 
 
 def _most_confident(poses, models):

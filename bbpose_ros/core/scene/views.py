@@ -53,7 +53,9 @@ class ViewedPose:
         covariance: (3, 3) translation covariance in the world frame, square metres (the
             view's ray model plus the camera's pose error).
         camera_position: (3,) the camera's optical centre in the world frame, metres.
-        confidence: the pose's confidence (0..1, ``PoseEstimate.confidence``).
+        confidence: the weight of the pose in the map (0..1: its confidence,
+            ``PoseEstimate.confidence``, lowered for a pipeline's second choice).
+        translation_camera: (3,) the model origin in the view's camera frame, metres.
 
     """
 
@@ -65,6 +67,7 @@ class ViewedPose:
     covariance: np.ndarray
     camera_position: np.ndarray
     confidence: float
+    translation_camera: np.ndarray
 
 
 def ray_covariance(translation_camera: np.ndarray, focal_px: float,
@@ -111,4 +114,4 @@ def view_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera:
         @ rotation_wc.T + camera_covariance(distance, options) * np.eye(3)
     return ViewedPose(object_name, view, stamp_ns, rotation_wc @ rotation_camera,
                       rotation_wc @ translation_camera + position, covariance,
-                      position.copy(), float(confidence))
+                      position.copy(), float(confidence), np.array(translation_camera))
