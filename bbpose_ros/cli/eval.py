@@ -31,6 +31,7 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
 from bbpose_ros.core.eval.evaluation import score_frames
+from bbpose_ros.core.eval.fusion import frame_camera_poses, FUSE_MODES
 from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
@@ -81,6 +82,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              'translation; default %(default)s)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the --perturb-gt perturbations (default %(default)s)')
+    parser.add_argument('--fuse', choices=FUSE_MODES, default='none',
+                        help="score each frame's own poses (none), or the map of its scene: "
+                             'built from the frames up to it (causal) or from the whole scene '
+                             "(final). Each BOP scene is one static scene; its scene_camera.json "
+                             'must hold the camera poses (cam_R_w2c, cam_t_w2c: bbpose '
+                             'static-scenes writes them). The map reads images and camera '
+                             'poses, never the ground truth (default %(default)s)')
+    parser.add_argument('--camera-noise', type=float_pair, default=None, metavar='MM,DEG',
+                        help='with --fuse: add a TF-like error to each camera pose first (RMS '
+                             'MM millimetres, DEG degrees; seeded by --seed), the map\'s '
+                             'sensitivity to it; the map_camera_sigma_* settings say what the '
+                             'map assumes (default: none)')
     add_objects_argument(parser)
     add_frames_argument(parser)
     add_blocks_argument(parser)
@@ -201,6 +214,11 @@ def run(args: argparse.Namespace) -> int:
     levels = args.perturb_gt or [None]
     if args.perturb_gt is not None and (args.boxes != 'gt' or args.rotation != 'gt'):
         raise InputError('--perturb-gt needs --boxes gt --rotation gt')
+    camera_poses = None
+    if args.fuse != 'none':
+        camera_poses = frame_camera_poses(frames, args.camera_noise, args.seed)
+    elif args.camera_noise is not None:
+        raise InputError('--camera-noise needs --fuse causal or final')
     pipeline = build_pipeline(models, args, params, weights)
     recorder = None
     if args.boxes == 'detector':
@@ -211,7 +229,8 @@ def run(args: argparse.Namespace) -> int:
         level_scores, timings = score_frames(
             frames, pipeline, boxes=args.boxes,
             rotation='gt' if args.rotation == 'gt' else 'estimator', min_visib=args.min_visib,
-            perturb=perturb, seed=args.seed, perturb_direction=args.perturb_direction)
+            perturb=perturb, seed=args.seed, perturb_direction=args.perturb_direction,
+            fuse=args.fuse, camera_poses=camera_poses)
         level_report = make_report(level_scores, timings, len(frames))
         if level is not None:
             sweep.append({'deg': level[0], 'mm': level[1], 'mean': level_report['mean']})
@@ -235,7 +254,8 @@ def run(args: argparse.Namespace) -> int:
                         'qnet_network': getattr(pipeline.rotation_estimator, 'precision',
                                                 None),
                         'perturb_gt_deg_mm': args.perturb_gt,
-                        'perturb_direction': args.perturb_direction, 'seed': args.seed}
+                        'perturb_direction': args.perturb_direction, 'seed': args.seed,
+                        'fuse': args.fuse, 'camera_noise_mm_deg': args.camera_noise}
     print(format_report(report))
     for level in report.get('sweep', []):
         mean = level['mean']

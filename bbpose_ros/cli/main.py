@@ -29,7 +29,8 @@ from bbpose_ros import __version__
 from bbpose_ros.core.errors import InputError
 
 SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'check_mesh', 'train', 'play', 'replay_eval',
-               'bench', 'docs', 'compare', 'pose_spread', 'add_object', 'adapt', 'score_labels')
+               'bench', 'docs', 'compare', 'pose_spread', 'add_object', 'adapt', 'score_labels',
+               'static_scenes')
 
 
 def build_parser() -> argparse.ArgumentParser:
