@@ -164,6 +164,10 @@ class PipelineOptions:
         0.1, 180.0)
     map_window: int = _setting(
         30, 'Most views of an object the map fuses (the newest).', 1, 1000)
+    map_keyframe_deg: float = _setting(
+        2.0, "A view whose ray to an object is within this of the object's newest view's "
+        '(the camera hardly moved) replaces that view in the map instead of joining it: '
+        'views from one place share their depth error, degrees.', 0.0, 90.0)
     map_move_views: int = _setting(
         3, 'An object is moved when this many of its newest views agree with each other and '
         'not with the map: its older views are dropped.', 1, 100)

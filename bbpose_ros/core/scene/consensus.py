@@ -98,22 +98,22 @@ def _mahalanobis2(delta, covariance):
     return np.einsum('...a,...a->...', delta, np.linalg.solve(covariance, delta[..., None])[..., 0])
 
 
-def agreement(views: Sequence[ViewedPose], symmetries: np.ndarray,
-              options: PipelineOptions) -> np.ndarray:
-    """(N, N) bool: which pairs of poses agree (module docstring); True on the diagonal."""
-    rotations, translations, covariances, _ = _stack(views, symmetries)
-    copies_r, copies_t = _symmetric_copies(rotations, translations, symmetries)
-    traces = np.einsum('iab,jsab->ijs', rotations, copies_r)
+def agreement(views_a: Sequence[ViewedPose], views_b: Sequence[ViewedPose],
+              symmetries: np.ndarray, options: PipelineOptions) -> np.ndarray:
+    """(A, B) bool: which poses of ``views_a`` agree with which of ``views_b`` (module doc)."""
+    if not views_a or not views_b:
+        return np.zeros((len(views_a), len(views_b)), dtype=bool)
+    rotations_a, translations_a, covariances_a, _ = _stack(views_a, symmetries)
+    rotations_b, translations_b, covariances_b, _ = _stack(views_b, symmetries)
+    copies_r, copies_t = _symmetric_copies(rotations_b, translations_b, symmetries)
+    traces = np.einsum('iab,jsab->ijs', rotations_a, copies_r)
     best = np.argmax(traces, axis=2)
     angle = np.degrees(np.arccos(np.clip((np.take_along_axis(traces, best[..., None], 2)[..., 0]
                                            - 1.0) / 2.0, -1.0, 1.0)))
-    aligned_t = np.take_along_axis(copies_t[None].repeat(len(views), 0),
-                                   best[..., None, None], 2)[:, :, 0]
-    delta = translations[:, None] - aligned_t
-    distance2 = _mahalanobis2(delta, covariances[:, None] + covariances[None])
-    agree = (angle < options.map_gate_deg) & (distance2 < CHI2_3DOF_99)
-    np.fill_diagonal(agree, True)
-    return agree
+    aligned_t = copies_t[np.arange(len(views_b))[None], best]
+    delta = translations_a[:, None] - aligned_t
+    distance2 = _mahalanobis2(delta, covariances_a[:, None] + covariances_b[None])
+    return (angle < options.map_gate_deg) & (distance2 < CHI2_3DOF_99)
 
 
 def _fuse(rotations, translations, covariances, weights, reference_r, symmetries):
@@ -139,19 +139,19 @@ def _one_a_view(candidates, weights, groups):
     return best
 
 
-def fuse_views(views: Sequence[ViewedPose], symmetries: np.ndarray, options: PipelineOptions,
-               tolerance_m: float) -> FusedPose:
+def fuse_views(views: Sequence[ViewedPose], agree: np.ndarray, symmetries: np.ndarray,
+               options: PipelineOptions, tolerance_m: float) -> FusedPose:
     """
     Fuse an object's views' candidate poses into one pose (see the module docstring).
 
     ``views``: the candidates, those of one view consecutive and sharing its ``view``;
-    ``tolerance_m``: the translation error the confidence is the chance of staying within
-    (the object's ADD(-S) threshold, a tenth of its diameter).
+    ``agree``: (N, N) their ``agreement`` with each other (kept by the caller, which adds
+    and drops views); ``tolerance_m``: the translation error the confidence is the chance
+    of staying within (the object's ADD(-S) threshold, a tenth of its diameter).
     """
     rotations, translations, covariances, weights = _stack(views, symmetries)
     groups = np.array([v.view for v in views])
-    agree = agreement(views, symmetries, options) & \
-        ((groups[:, None] != groups[None]) | np.eye(len(views), dtype=bool))
+    agree = agree & ((groups[:, None] != groups[None]) | np.eye(len(views), dtype=bool))
     starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
     support = np.maximum.reduceat(agree * weights[None], starts, axis=1).sum(1)
     seed = int(np.flatnonzero(support == support.max())[-1])     # ties: the newest view

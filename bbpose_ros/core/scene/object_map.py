@@ -36,7 +36,6 @@ the camera's error does not move the pose across the ray.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -96,10 +95,19 @@ class MapObject:
 
 
 class _Entry:
-    """An object's kept views (each a list of candidate ViewedPoses) and their fused pose."""
+    """
+    An object's kept views (each a list of candidate ViewedPoses) and their fused pose.
 
-    def __init__(self, window: int) -> None:
-        self.views: deque[list[ViewedPose]] = deque(maxlen=window)
+    ``agree`` is the (N, N) ``consensus.agreement`` of the N kept candidates, view by view,
+    kept up to date as views come and go, so that a new view costs N comparisons, not N^2.
+    """
+
+    def __init__(self, model: ObjectModel, options: PipelineOptions) -> None:
+        self.options = options
+        self.symmetries = model.symmetry_transforms
+        self.tolerance = TOLERANCE_DIAMETERS * model.diameter
+        self.views: list[list[ViewedPose]] = []
+        self.agree = np.zeros((0, 0), dtype=bool)
         self.fused: FusedPose | None = None
 
     @property
@@ -110,6 +118,52 @@ class _Entry:
     def inlier_candidates(self) -> list[ViewedPose]:
         """The candidates the fused pose was made of (one a view at most)."""
         return [c for c, inlier in zip(self.candidates, self.fused.inliers) if inlier]
+
+    def add(self, view: list[ViewedPose]) -> None:
+        """Keep a view: in place of the newest where the rays hardly differ, else added."""
+        if self.views and _ray_angle_deg(self.views[-1][0], view[0]) < \
+                self.options.map_keyframe_deg:
+            self._drop(len(self.views) - 1)
+        if len(self.views) == self.options.map_window:
+            self._drop(0)
+        old = self.candidates
+        across = agreement(view, old, self.symmetries, self.options)
+        within = agreement(view, view, self.symmetries, self.options)
+        self.agree = np.block([[self.agree, across.T], [across, within]])
+        self.views.append(view)
+        self.fused = fuse_views(self.candidates, self.agree, self.symmetries, self.options,
+                                self.tolerance)
+        self._restart_if_moved()
+
+    def _drop(self, index):
+        start = sum(len(v) for v in self.views[:index])
+        keep = np.ones(len(self.agree), dtype=bool)
+        keep[start:start + len(self.views[index])] = False
+        self.agree = self.agree[keep][:, keep]
+        del self.views[index]
+
+    def _restart_if_moved(self):
+        """Drop the older views where the newest agree with each other, not with the map."""
+        count = self.options.map_move_views
+        recent = self.views[-count:]
+        if len(recent) < count or len(self.views) == count:
+            return
+        seen_recently = {c.view for c in self.inlier_candidates()} & {v[0].view for v in recent}
+        chosen = [v[0] for v in recent]
+        if not seen_recently and agreement(chosen, chosen, self.symmetries,
+                                           self.options).all():
+            while len(self.views) > count:
+                self._drop(0)
+            self.fused = fuse_views(self.candidates, self.agree, self.symmetries,
+                                    self.options, self.tolerance)
+
+
+def _ray_angle_deg(a: ViewedPose, b: ViewedPose) -> float:
+    """Angle between the rays from two views' cameras to their poses of the object, degrees."""
+    ray_a = a.translation - a.camera_position
+    ray_b = b.translation - b.camera_position
+    cosine = ray_a @ ray_b / (np.linalg.norm(ray_a) * np.linalg.norm(ray_b))
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
 class ObjectMap:
@@ -143,27 +197,12 @@ class ObjectMap:
         view = self._view_count
         self._view_count += 1
         for pose in _most_confident(poses, self.models):
-            entry = self._entries.setdefault(pose.object_name, _Entry(self.options.map_window))
-            entry.views.append([
-                view_in_world(pose.object_name, view, stamp_ns, world_from_camera, rotation,
-                              translation, weight, focal, self.options)
-                for rotation, translation, weight in _candidates(pose)])
-            self._refit(pose.object_name, entry)
+            name = pose.object_name
+            entry = self._entries.setdefault(name, _Entry(self.models[name], self.options))
+            entry.add([view_in_world(name, view, stamp_ns, world_from_camera, rotation,
+                                     translation, weight, focal, self.options)
+                       for rotation, translation, weight in _candidates(pose)])
         return view
-
-    def _refit(self, name, entry):
-        model = self.models[name]
-        tolerance = TOLERANCE_DIAMETERS * model.diameter
-        symmetries = model.symmetry_transforms
-        entry.fused = fuse_views(entry.candidates, symmetries, self.options, tolerance)
-        recent = list(entry.views)[-self.options.map_move_views:]
-        if len(recent) < self.options.map_move_views or len(entry.views) == len(recent):
-            return
-        seen_recently = {c.view for c in entry.inlier_candidates()} & {v[0].view for v in recent}
-        if not seen_recently and agreement([v[0] for v in recent], symmetries,
-                                           self.options).all():
-            entry.views = deque(recent, maxlen=self.options.map_window)
-            entry.fused = fuse_views(entry.candidates, symmetries, self.options, tolerance)
 
     def objects(self) -> list[MapObject]:
         """The map's objects, by name."""
