@@ -27,7 +27,7 @@ The pipeline's detector and Q-Net (ONNX Runtime) and the refinement's numba kern
 thread calls the PosePipeline while a job runs or a frame waits (``idle`` tells when it
 does not); the tracker calls its PoseRefiner's ``refine_tracks``, which
 keeps no state between calls (``refine_poses`` builds its own per call), and the parallel
-kernels are safe to launch from both threads (``line_kernels.parallel_launch``).
+kernels are safe to launch from both threads (``kernel_launch.parallel_launch``).
 """
 
 from __future__ import annotations
