@@ -32,9 +32,9 @@ from rclpy.context import Context
 from rclpy.impl.rcutils_logger import RcutilsLogger
 from sensor_msgs.msg import CameraInfo
 
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.geometry.camera_info import CameraModel, Rectifier
 from bbpose_ros.core.pipeline.tracking import PoseTracker
-from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.node_pipeline import NodePipeline
