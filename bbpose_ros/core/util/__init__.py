@@ -12,4 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Helpers every layer uses and no concern folder owns: atomic file outputs (a leaf)."""
+"""Helpers no concern folder owns (a leaf): atomic file outputs, a newest-wins hand-off."""
