@@ -45,7 +45,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.graph.graph_bench import camera_messages
 from bbpose_ros.cli.graph.replay import NodeProcess
-from bbpose_ros.core.stamps import stamp_to_ns
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status
 
 pytestmark = pytest.mark.slow   # starts bbpose_node as a process

@@ -23,8 +23,9 @@ training may use synth but never the other way, adaptation (self-training) sits 
 training and eval, and the running node reaches nothing of core/eval, core/training,
 core/synth, core/adaptation or cli through any chain of imports; ``bbpose train``
 needs no ROS, and no ``bbpose`` command imports another (what two share lives in
-cli/common.py or the core). No module imports itself through a chain of others (no circle,
-lazy and type-checking imports included), and no two modules share a file name.
+cli/common.py or the core); core/util (a leaf) imports nothing else of the package. No
+module imports itself through a chain of others (no circle, lazy and type-checking imports
+included), and no two modules share a file name.
 """
 
 import ast
@@ -111,7 +112,7 @@ def test_the_scan_sees_the_package():
     ('bbpose_ros.core.geometry', ('bbpose_ros.core.data', 'bbpose_ros.core.nets',
                                   'bbpose_ros.core.pipeline', 'bbpose_ros.core.eval',
                                   'bbpose_ros.core.render', 'bbpose_ros.core.synth',
-                                  'bbpose_ros.core.training', 'bbpose_ros.core.viz')),
+                                  'bbpose_ros.core.training')),
     ('bbpose_ros.core.data', ('bbpose_ros.core.nets', 'bbpose_ros.core.pipeline',
                               'bbpose_ros.core.eval', 'bbpose_ros.core.render',
                               'bbpose_ros.core.synth', 'bbpose_ros.core.training')),
@@ -125,6 +126,12 @@ def test_the_scan_sees_the_package():
 ])
 def test_layers_import_one_way(layer, forbidden):
     assert _violations(layer, forbidden) == []
+
+
+def test_util_is_a_leaf():
+    assert sorted(f'{module} imports {name}' for module, names in MODULES.items()
+                  if _in(module, 'bbpose_ros.core.util')
+                  for name in _internal(names) if not _in(name, 'bbpose_ros.core.util')) == []
 
 
 def test_no_command_imports_another():
@@ -206,4 +213,4 @@ def test_the_node_reaches_no_offline_code():
     offline = ('bbpose_ros.core.eval', 'bbpose_ros.core.training', 'bbpose_ros.core.synth',
                'bbpose_ros.core.adaptation', 'bbpose_ros.cli', 'bbpose_ros.bags')
     assert sorted(m for m in reached if any(_in(m, o) for o in offline)) == []
-    assert 'bbpose_ros.core.viz' in reached
+    assert 'bbpose_ros.core.pipeline.overlays' in reached

@@ -40,10 +40,10 @@ from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.models import LMO_OBJECTS
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
-from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros.diagnostics import counts_from_status, DROPS
 
 pytestmark = pytest.mark.slow   # starts bbpose_node as a process

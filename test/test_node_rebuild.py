@@ -34,8 +34,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.graph.graph_bench import camera_messages
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.pipeline.tracking import PoseTracker
-from bbpose_ros.core.stamps import stamp_to_ns
 from bbpose_ros.ros import node as node_module
 
 pytestmark = pytest.mark.slow   # starts bbpose_node as a process

@@ -26,7 +26,7 @@ from test_ros_support import GraphClient, use_private_domain
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.writer import write_bop_bag
-from bbpose_ros.core.stamps import stamp_to_ns
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.ros.conversions import image_to_rgb
 
 pytestmark = pytest.mark.slow   # runs bbpose play as a process

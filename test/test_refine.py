@@ -33,7 +33,7 @@ from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.pipeline.tracking import PoseTracker
-from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine import contour_projection
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.refiner import refine_poses, Refinement, RefinerConfig
@@ -757,8 +757,8 @@ def test_occluders_hide_exactly_the_points_inside_their_outline():
         beside = stars[0] + np.stack([rng.uniform(-3.0, 3.0, points), np.zeros(points)], 1)
         centres = np.concatenate([stars, beside[None]])
         in_front = np.ones((3, points), bool)
-        line_kernels.hide_occluded(centres, np.array([1.0, 2.0, 3.0]), np.arange(3),
-                                   np.array([True, False, False]), in_front)
+        contour_projection.hide_occluded(centres, np.array([1.0, 2.0, 3.0]), np.arange(3),
+                                         np.array([True, False, False]), in_front)
         assert in_front[0].all()        # the nearer one is never hidden
         for target in (1, 2):
             expected = _inside_even_odd(centres[target, :, 0], centres[target, :, 1],

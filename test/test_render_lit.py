@@ -24,7 +24,7 @@ from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.render.scene_light import Material, PointLight, SceneLights, \
     TexturedPlane
-from bbpose_ros.core.synth.table_scenes import look_at
+from bbpose_ros.core.synth.table_layout import look_at
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
 

@@ -12,14 +12,14 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Charts (core.eval.plots) and overlays (core.viz) on exact LM-O poses."""
+"""Charts (core.eval.plots) and overlays (core.pipeline.overlays) on exact LM-O poses."""
 
 import cv2
 import numpy as np
 
-from bbpose_ros.core import viz
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import score_frame, summarize_objects
+from bbpose_ros.core.pipeline import overlays
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
 
@@ -37,9 +37,9 @@ def test_charts_and_overlays_are_written(lmo_frames, lmo_models, tmp_path):
     plots.object_bars(per_object, tmp_path / 'bars.png')
 
     image = frame.load_image()
-    debug = viz.draw_estimates(image, frame.camera, lmo_models, exact)
+    debug = overlays.draw_estimates(image, frame.camera, lmo_models, exact)
     truths = [(i.object_name, i.rotation, i.translation) for i in counted]
-    viz.write_image(tmp_path / 'overlay.png', viz.draw_comparison(
+    overlays.write_image(tmp_path / 'overlay.png', overlays.draw_comparison(
         image, frame.camera, lmo_models, truths, truths))
     assert debug.shape == image.shape and not np.array_equal(debug, image)
     for name in ('curves.png', 'bars.png', 'overlay.png'):
@@ -47,5 +47,5 @@ def test_charts_and_overlays_are_written(lmo_frames, lmo_models, tmp_path):
 
 
 def test_object_colours_are_distinct_for_linemod():
-    colours = [viz.object_color(obj_id) for obj_id in range(1, 16)]
+    colours = [overlays.object_color(obj_id) for obj_id in range(1, 16)]
     assert len(set(colours)) == 15

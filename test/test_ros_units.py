@@ -16,7 +16,6 @@
 
 from pathlib import Path
 import re
-import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
@@ -30,14 +29,14 @@ from visualization_msgs.msg import Marker
 import yaml
 
 from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
+from bbpose_ros.core.data.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
-from bbpose_ros.core.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status
-from bbpose_ros.ros.pairing import LatestSlot, NEWER_PAIRED, Pairing, QUEUE_FULL, StampPairer
+from bbpose_ros.ros.pairing import NEWER_PAIRED, Pairing, QUEUE_FULL, StampPairer
 from bbpose_ros.ros.param_specs import APPLIES
 from bbpose_ros.ros.params import check_value, checked_options, declare_parameters
 from bbpose_ros.ros.params import parameter_values, PARAMETERS, read_config
@@ -106,19 +105,6 @@ def test_negative_slop_takes_the_latest_info():
     pairer.add_image(1 * SECOND, 'a', -1.0)
     pairer.add_image(2 * SECOND, 'b', -1.0)
     assert pairer.add_info(9 * SECOND, 'info', -1.0).pairs == [('a', 'info'), ('b', 'info')]
-
-
-def test_latest_slot_keeps_only_the_newest_item():
-    slot = LatestSlot()
-    assert slot.put(1) is None
-    assert slot.put(2) == 1
-    assert slot.take() == 2
-    taken = []
-    worker = threading.Thread(target=lambda: taken.append(slot.take()))
-    worker.start()
-    slot.close()
-    worker.join(5.0)
-    assert taken == [None]
 
 
 def test_throttle_is_per_key():

@@ -35,7 +35,7 @@ from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.pipeline.tracking import PoseTracker, Track
-from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine import kernel_launch
 from bbpose_ros.core.refine.refiner import compile_kernels
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.ros.diagnostics import stage_rates
@@ -327,9 +327,9 @@ def test_stream_needs_tracking():
 def test_parallel_kernels_launch_safely():
     compile_kernels()       # a parallel kernel has run: numba has chosen its layer
     layer = numba.threading_layer()
-    assert line_kernels.concurrent_launches_safe() == (layer != 'workqueue')
-    lock = line_kernels.parallel_launch()
-    assert (lock is line_kernels._LAUNCHES) == (layer == 'workqueue')
+    assert kernel_launch.concurrent_launches_safe() == (layer != 'workqueue')
+    lock = kernel_launch.parallel_launch()
+    assert (lock is kernel_launch._LAUNCHES) == (layer == 'workqueue')
 
 
 def test_stage_rates():

@@ -33,7 +33,8 @@ from bbpose_ros.core.synth.effects import color_response
 from bbpose_ros.core.synth.stable_poses import compute_stable_poses, resting_height
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_crops import TableCrops
-from bbpose_ros.core.synth.table_scenes import look_at, polygons_overlap, TableScenes
+from bbpose_ros.core.synth.table_layout import look_at, polygons_overlap
+from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 
 pytestmark = pytest.mark.slow   # renders with OpenGL

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.video import write_video
+from bbpose_ros.core.eval.video import write_video
 
 
 def decode(path):

@@ -44,9 +44,9 @@ from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.eval.recorded_poses import latencies_ms
-from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.core.util.files import write_json_atomic
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.node_pipeline import build_node_pipeline
 from bbpose_ros.ros.params import read_config

@@ -20,7 +20,7 @@ from pathlib import Path
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.paired import (compare, compare_objects, format_comparison,
                                          format_objects, read_runs)
-from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.util.files import write_json_atomic
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

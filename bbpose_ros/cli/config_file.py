@@ -32,8 +32,8 @@ from typing import Any
 
 import yaml
 
-from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.inference.options import SETTINGS
+from bbpose_ros.core.util.files import atomic_output
 from bbpose_ros.ros.param_specs import ParameterSpec
 from bbpose_ros.ros.params import PARAMETERS
 

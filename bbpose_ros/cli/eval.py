@@ -33,10 +33,10 @@ from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_r
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.fusion import frame_camera_poses, FUSE_MODES
 from bbpose_ros.core.eval.paired import write_instances
-from bbpose_ros.core.files import write_json_atomic
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
+from bbpose_ros.core.util.files import write_json_atomic
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -45,7 +45,6 @@ from bbpose_ros.bags.reader import bag_image_source, BagFrame, read_bag_frames
 from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
-from bbpose_ros.core import viz
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
@@ -54,8 +53,9 @@ from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
 from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
-from bbpose_ros.core.files import write_json_atomic
-from bbpose_ros.core.video import check_video_path, write_video
+from bbpose_ros.core.eval.video import check_video_path, write_video
+from bbpose_ros.core.pipeline import overlays
+from bbpose_ros.core.util.files import write_json_atomic
 from bbpose_ros.ros.params import resolve_dataset_dir
 from bbpose_ros.ros.params_file import read_params_file
 
@@ -116,9 +116,9 @@ def write_plots(folder: Path, frames: Sequence[BagFrame], recording: Recording,
         frame = frames[index]
         truths = [(i.object_name, i.rotation, i.translation)
                   for i in ground_truth_instances(frame, models)]
-        image = viz.draw_comparison(frame.image_rgb, frame.camera, models, truths,
-                                    recording.poses.get(frame.stamp_ns, []))
-        viz.write_image(folder / f'overlay_{index:04d}.png', image)
+        image = overlays.draw_comparison(frame.image_rgb, frame.camera, models, truths,
+                                         recording.poses.get(frame.stamp_ns, []))
+        overlays.write_image(folder / f'overlay_{index:04d}.png', image)
 
 
 def video_frames(frames: Sequence[BagFrame], recording: Recording,
@@ -128,10 +128,10 @@ def video_frames(frames: Sequence[BagFrame], recording: Recording,
         estimates = recording.poses.get(frame.stamp_ns, [])
         truths = [(i.object_name, i.rotation, i.translation)
                   for i in ground_truth_instances(frame, models)]
-        yield viz.side_by_side([
-            (viz.draw_comparison(frame.image_rgb, frame.camera, models, [], estimates),
+        yield overlays.side_by_side([
+            (overlays.draw_comparison(frame.image_rgb, frame.camera, models, [], estimates),
              f'bbpose_node: {len(estimates)} poses (frame {index})'),
-            (viz.draw_comparison(frame.image_rgb, frame.camera, models, [], truths),
+            (overlays.draw_comparison(frame.image_rgb, frame.camera, models, [], truths),
              f'ground truth: {len(truths)} objects')])
 
 

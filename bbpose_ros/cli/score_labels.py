@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.adaptation.adapt_stages import read_rounds
     from bbpose_ros.core.data.bop import BopDataset
     from bbpose_ros.core.eval.label_precision import label_precision
-    from bbpose_ros.core.files import write_json_atomic
+    from bbpose_ros.core.util.files import write_json_atomic
 
     dataset = BopDataset(args.dataset, args.split)
     frames = dataset.frames()

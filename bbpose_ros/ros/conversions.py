@@ -34,8 +34,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 from bbpose_ros.core.data.image_encoding import decode_image, encode_rgb8
 from bbpose_ros.core.data.models import BOX_EDGES, ObjectModel
 from bbpose_ros.core.geometry.rotations import matrix_to_quat_wxyz, wxyz_to_xyzw
+from bbpose_ros.core.pipeline.overlays import object_color
 from bbpose_ros.core.pipeline.poses import PoseEstimate
-from bbpose_ros.core.viz import object_color
 
 BOX_LINE_WIDTH_M = 0.003
 LABEL_HEIGHT_M = 0.02

@@ -16,8 +16,8 @@
 Frame intake: the ``image`` and ``camera_info`` subscriptions, their checks and pairing.
 
 The callbacks run on the executor thread and only check, decode and pair: an image's stamp
-(``core/stamps.py``: repeated, gone back, from the future), its frame_id, its encoding and
-size; a CameraInfo when it pairs (``camera_model``). Each problem is counted for
+(``core/data/stamps.py``: repeated, gone back, from the future), its frame_id, its encoding
+and size; a CameraInfo when it pairs (``camera_model``). Each problem is counted for
 /diagnostics and logged, throttled; a bad image or CameraInfo drops the frame, the others
 are answered anyway. Images wait a while for their CameraInfo (``pairing.StampPairer``);
 each pair goes to ``hand_off`` (the worker) as a Frame and its CameraModel.
@@ -42,10 +42,10 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
 from bbpose_ros.core.data.compressed_image import decode_compressed
+from bbpose_ros.core.data.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry import camera_info
 from bbpose_ros.core.geometry.camera_info import CameraModel
-from bbpose_ros.core.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import incompatible_qos_text, InputWatch, NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text

@@ -13,18 +13,18 @@
 # limitations under the License.
 
 """
-Image / CameraInfo pairing by header stamp and the one-frame hand-off to the worker.
+Image / CameraInfo pairing by header stamp.
 
 Plain Python (no rclpy): stamps are integer nanoseconds, payloads are opaque. A short queue
 of images waits for their CameraInfo (as message_filters' ApproximateTime keeps one per
 topic), so a CameraInfo that arrives after the next image still pairs its own; only the
-newest pair waits for the worker, so a slow pipeline never builds a backlog.
+newest pair waits for the worker (``core/util/latest_slot.py``), so a slow pipeline never
+builds a backlog.
 """
 
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-import threading
 import time
 from typing import Any
 
@@ -127,32 +127,3 @@ class StampPairer:
             return self._infos[-1][1]
         stamp, info = min(self._infos, key=lambda item: abs(item[0] - stamp_ns))
         return info if abs(stamp - stamp_ns) <= slop_s * 1e9 else None
-
-
-class LatestSlot:
-    """A one-item hand-off between threads: put replaces, take waits."""
-
-    def __init__(self) -> None:
-        self._item = None
-        self._closed = False
-        self._condition = threading.Condition()
-
-    def put(self, item: Any) -> Any | None:
-        """Offer an item; returns the item it replaced (never processed) or None."""
-        with self._condition:
-            replaced, self._item = self._item, item
-            self._condition.notify()
-        return replaced
-
-    def take(self) -> Any | None:
-        """Wait for an item and remove it; None once the slot is closed."""
-        with self._condition:
-            self._condition.wait_for(lambda: self._item is not None or self._closed)
-            item, self._item = self._item, None
-        return None if self._closed else item
-
-    def close(self) -> None:
-        """Wake the taker for good (shutdown)."""
-        with self._condition:
-            self._closed = True
-            self._condition.notify_all()

@@ -34,8 +34,8 @@ from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.pipeline.overlays import draw_estimates
 from bbpose_ros.core.pipeline.poses import PoseEstimate
-from bbpose_ros.core.viz import draw_estimates
 from bbpose_ros.ros import conversions, detections
 from bbpose_ros.ros.node_pipeline import NodePipeline
 

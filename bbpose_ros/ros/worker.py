@@ -15,7 +15,7 @@
 """
 The worker thread: the pipeline run on the newest paired frame, its results published.
 
-Pairs wait in a one-item slot (``pairing.LatestSlot``): one that arrives while the worker
+Pairs wait in a one-item slot (``LatestSlot``): one that arrives while the worker
 is busy replaces the one waiting (``superseded``) instead of queueing. The pipeline is
 taken once per frame, so a run-time rebuild swaps it between two frames; a frame of a new
 stream (the image stamps went back) resets a tracker first. A frame whose estimate fails is
@@ -32,13 +32,13 @@ from rclpy.context import Context
 from rclpy.impl.rcutils_logger import RcutilsLogger
 from sensor_msgs.msg import CameraInfo
 
+from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.geometry.camera_info import CameraModel, Rectifier
 from bbpose_ros.core.pipeline.tracking import PoseTracker
-from bbpose_ros.core.stamps import stamp_to_ns
+from bbpose_ros.core.util.latest_slot import LatestSlot
 from bbpose_ros.ros.diagnostics import NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.node_pipeline import NodePipeline
-from bbpose_ros.ros.pairing import LatestSlot
 from bbpose_ros.ros.publishers import FramePublishers
 from bbpose_ros.ros.throttle import ProblemLog
 

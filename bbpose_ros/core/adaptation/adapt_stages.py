@@ -57,11 +57,11 @@ from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, Hea
 from bbpose_ros.core.adaptation.teacher import Teacher, TeacherPose
 from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import atomic_output, write_json_atomic
 from bbpose_ros.core.inference.int8_graphs import int8_graph_path
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
 from bbpose_ros.core.pipeline.loader import WeightFiles
+from bbpose_ros.core.pipeline.overlays import draw_box_2d, draw_label
 from bbpose_ros.core.synth.export import BopSceneWriter, write_json
 from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.object_rows import RowTraining
@@ -69,7 +69,7 @@ from bbpose_ros.core.training.quantization import (calibration_crops, calibratio
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.staged_folder import StagedFolder
-from bbpose_ros.core.viz import draw_box_2d, draw_label
+from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 STUDENTS = ('detector', 'qnet')
 # The weight-file metadata field naming the frames a network adapted on.

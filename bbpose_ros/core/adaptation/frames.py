@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from bbpose_ros.core.data.bop import BopDataset
+from bbpose_ros.core.data.fingerprints import sha256_of_arrays
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.fingerprints import sha256_of_arrays
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 

@@ -13,4 +13,4 @@
 # limitations under the License.
 
 
-"""Reading object meshes, BOP datasets and raw image buffers."""
+"""Object meshes (and their fingerprints), BOP datasets, raw image buffers, header stamps."""

@@ -42,7 +42,7 @@ import trimesh
 from bbpose_ros.core.data.models import (check_names, convex_hull_points, MM_TO_M, NAMES_FILE,
                                          read_mesh_file)
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import atomic_output, write_json_atomic
+from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 # Metres per file unit.
 UNITS = {'mm': MM_TO_M, 'm': 1.0}

@@ -13,4 +13,4 @@
 # limitations under the License.
 
 
-"""Offline scoring: BOP pose metrics, detection recall, reports, charts and stage timings."""
+"""Offline scoring: BOP pose metrics, detection recall, reports, charts, timings, videos."""

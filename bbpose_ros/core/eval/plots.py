@@ -17,7 +17,7 @@ Evaluation charts (matplotlib): recall curves, per-object recalls, errors by vis
 
 Charts are written as PNG files with matplotlib's object API on the Agg canvas, so no
 display and no global backend are needed; matplotlib is imported inside the chart functions
-only. Overlays on frames are in ``bbpose_ros.core.viz``.
+only. Overlays on frames are in ``bbpose_ros.core.pipeline.overlays``.
 """
 
 from collections.abc import Mapping, Sequence

@@ -48,7 +48,7 @@ import re
 from typing import Any
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.util.files import atomic_output
 
 REPORTS_DIR = Path('docs', 'reports')
 MARKER = re.compile(r'<!-- table: (?P<name>[\w-]+) -->\n(?P<body>.*?)<!-- /table -->',

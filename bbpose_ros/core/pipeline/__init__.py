@@ -13,4 +13,4 @@
 # limitations under the License.
 
 
-"""The run-time pose pipeline: its stages, image -> detections -> rotations -> poses."""
+"""The run-time pose pipeline: image -> detections -> rotations -> poses, and their overlays."""

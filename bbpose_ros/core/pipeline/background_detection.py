@@ -18,16 +18,16 @@ The full pipeline beside the tracks: one job at a time, on the newest frame hand
 Stream mode (``tracking_stream``) answers every frame from the tracks and hands frames to a
 ``BackgroundDetection``, which runs the PosePipeline (detector, Q-Net, Bounding Box
 Equation, refinement) in a thread of its own. Frames are never queued: a frame handed while
-a job runs waits in a one-frame slot, and a newer one replaces it; when the job ends, the
-next takes the frame waiting. The finished job's poses wait until the tracker ``take``s
-them (the newest only).
+a job runs waits in a one-frame slot (``LatestSlot``), and a newer one replaces it; when the
+job ends, the next takes the frame waiting. The finished job's poses wait until the
+tracker ``take``s them (the newest only).
 
 The pipeline's detector and Q-Net (ONNX Runtime) and the refinement's numba kernels
 (``nogil``) release the GIL, so the job runs on the cores the tracks leave. Only this
 thread calls the PosePipeline while a job runs or a frame waits (``idle`` tells when it
 does not); the tracker calls its PoseRefiner's ``refine_tracks``, which
 keeps no state between calls (``refine_poses`` builds its own per call), and the parallel
-kernels are safe to launch from both threads (``line_kernels.parallel_launch``).
+kernels are safe to launch from both threads (``kernel_launch.parallel_launch``).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import numpy as np
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import FrameResult
+from bbpose_ros.core.util.latest_slot import LatestSlot
 
 # A stop waits this long for the job in hand (one run of the full pipeline) to end.
 STOP_TIMEOUT_S = 30.0
@@ -86,11 +87,12 @@ class BackgroundDetection:
 
     def __init__(self, pipeline: PosePipeline) -> None:
         self._pipeline = pipeline
-        self._changed = threading.Condition()
-        self._waiting: tuple[np.ndarray, CameraIntrinsics, float] | None = None
+        # One lock for the slot and the state below: a frame taken is a job running.
+        self._changed = threading.Condition(threading.RLock())
+        # The current thread's frames, (image, camera, handed_s); closed when it stops.
+        self._slot: LatestSlot | None = None
         self._finished: FinishedJob | None = None
         self._thread: threading.Thread | None = None
-        self._stopped = threading.Event()     # the current thread's
         self._closed = False
         self._busy = False      # a job runs
 
@@ -98,13 +100,13 @@ class BackgroundDetection:
     def waiting(self) -> bool:
         """Tell whether a handed frame waits for the job in hand to end."""
         with self._changed:
-            return self._waiting is not None
+            return self._slot is not None and self._slot.waiting
 
     @property
     def idle(self) -> bool:
         """Tell whether the pipeline is free to call: no job runs or waits, not closed."""
         with self._changed:
-            return not self._busy and self._waiting is None and not self._closed
+            return not self._busy and not self.waiting and not self._closed
 
     @property
     def running(self) -> bool:
@@ -122,13 +124,12 @@ class BackgroundDetection:
         with self._changed:
             if self._closed:
                 return
-            self._waiting = (image_rgb, camera, time.perf_counter())
             if self._thread is None:
-                self._stopped = threading.Event()
-                self._thread = threading.Thread(target=self._run, args=(self._stopped,),
+                self._slot = LatestSlot(self._changed)
+                self._thread = threading.Thread(target=self._run, args=(self._slot,),
                                                 name='bbpose_detection', daemon=True)
                 self._thread.start()
-            self._changed.notify_all()
+            self._slot.put((image_rgb, camera, time.perf_counter()))
 
     def take(self) -> FinishedJob | None:
         """Return the newest finished job not taken yet (an older one is dropped), or None."""
@@ -140,9 +141,9 @@ class BackgroundDetection:
         """End the thread after the job in hand (its poses are dropped); forget the frames."""
         with self._changed:
             thread, self._thread = self._thread, None
-            self._stopped.set()
-            self._waiting = None
-            self._changed.notify_all()
+            if self._slot is not None:      # the thread woken, the frame waiting dropped
+                self._slot.close()
+                self._slot.drop()
         if thread is not None and thread is not threading.current_thread():
             thread.join(STOP_TIMEOUT_S)
         with self._changed:
@@ -154,15 +155,13 @@ class BackgroundDetection:
             self._closed = True
         self.stop()
 
-    def _run(self, stopped: threading.Event) -> None:
-        """Thread: run the pipeline on each frame handed, until ``stopped`` is set."""
+    def _run(self, slot: LatestSlot) -> None:
+        """Thread: run the pipeline on each frame handed, until ``slot`` is closed."""
         while True:
             with self._changed:
-                while self._waiting is None and not stopped.is_set():
-                    self._changed.wait()
-                if stopped.is_set():
+                if (frame := slot.take()) is None:
                     return
-                (image_rgb, camera, handed_s), self._waiting = self._waiting, None
+                image_rgb, camera, handed_s = frame
                 self._busy = True
             started_s = time.perf_counter()
             result = error = None
@@ -171,9 +170,9 @@ class BackgroundDetection:
             except Exception as err:  # noqa: B902 - handed to the tracker, which raises it
                 error = err
             with self._changed:
-                if stopped is self._stopped:    # a thread stopped and replaced leaves it
+                if slot is self._slot:      # a thread stopped and replaced leaves it
                     self._busy = False
-                if stopped.is_set():
+                if slot.closed:
                     return
                 self._finished = FinishedJob(result, error, handed_s, started_s,
                                              time.perf_counter())

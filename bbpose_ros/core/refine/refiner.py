@@ -46,7 +46,7 @@ import numpy.typing as npt
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine import kernel_launch
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import newton_update, start_prior
@@ -220,7 +220,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
                          f'{camera.width}x{camera.height}')
     if count == 0:
         return []
-    line_kernels.use_threads(options.refine_threads)
+    kernel_launch.use_threads(options.refine_threads)
     start_rotation = np.array(rotations, dtype=float).reshape(count, 3, 3)
     start_translation = np.array(translations, dtype=float).reshape(count, 3)
     rotation, translation = start_rotation.copy(), start_translation.copy()
@@ -312,7 +312,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
 
 def compile_kernels() -> None:
     """
-    Compile the refinement's kernels (``line_kernels``) now, not in the first frame.
+    Compile the refinement's numba kernels (see ``kernel_launch``) now, not in the first frame.
 
     numba compiles them once per machine and source (tens of seconds) into its cache and
     loads them from there after that (a fraction of a second); a refinement of a synthetic

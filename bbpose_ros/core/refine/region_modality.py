@@ -48,7 +48,8 @@ import numpy as np
 
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine import (contour_projection, kernel_launch, line_distributions,
+                                    line_gradient, line_histograms)
 from bbpose_ros.core.refine.color_histograms import BINS_PER_CHANNEL
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks, OUTSIDE_LOG_ODDS
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
@@ -131,7 +132,7 @@ class RegionModality:
             (1 - w) * the colours' + w * the mask's (1: the mask alone).
         occlusions: (instances, casts): per pose, the (N,) int instance it is a candidate
             for and the (N,) bool whether its silhouette hides the contours of other
-            instances' poses behind it (``line_kernels.hide_occluded``; ICG's model
+            instances' poses behind it (``contour_projection.hide_occluded``; ICG's model
             occlusions, with the silhouettes of the poses themselves); None: no pose hides
             another.
         local_window: > 0: local colour models (``LocalColors``) of the lines up to this
@@ -177,13 +178,13 @@ class RegionModality:
         in_front = np.empty((count, lines), dtype=bool)
         camera = self.camera
         for model, poses in self.groups:
-            line_kernels.project_contours(
+            contour_projection.project_contours(
                 model.view_directions, model.points, model.normals, model.foreground_m,
                 model.background_m, poses, rotation, translation, camera.fx, camera.fy,
                 camera.cx, camera.cy, points, centres, normals, runs_f, runs_b, in_front)
         if self.occlusions is not None and count > 1:
-            line_kernels.hide_occluded(centres, translation[:, 2].astype(float),
-                                       *self.occlusions, in_front)
+            contour_projection.hide_occluded(centres, translation[:, 2].astype(float),
+                                             *self.occlusions, in_front)
         projected = points, centres, normals, runs_f, runs_b, in_front
         for array in projected:
             array.flags.writeable = False       # shared with the next caller at this pose
@@ -215,8 +216,8 @@ class RegionModality:
         local = LocalColors(
             np.zeros((count, self.lines_per_view, 2, len(_HISTOGRAM_OFFSETS)), np.uint16),
             np.zeros((count, self.lines_per_view, 2), np.int32))
-        with line_kernels.parallel_launch():
-            hist_f, hist_b, totals = line_kernels.line_color_histograms(
+        with kernel_launch.parallel_launch():
+            hist_f, hist_b, totals = line_histograms.line_color_histograms(
                 self.bins, self.camera.width, self.camera.height, centres, normals, runs_f,
                 runs_b, in_front, _HISTOGRAM_OFFSETS, MAX_HISTOGRAM_RUN_PX, _BINS,
                 local.samples, local.counts)
@@ -241,8 +242,8 @@ class RegionModality:
         if chosen is not None:
             valid &= chosen
         masks = self.masks
-        with line_kernels.parallel_launch():
-            mean, variance, distribution = line_kernels.contour_distributions(
+        with kernel_launch.parallel_launch():
+            mean, variance, distribution = line_distributions.contour_distributions(
                 self.bins, camera.width, camera.height, centres, normals, valid,
                 np.asarray(hist_f, dtype=np.float64), np.asarray(hist_b, dtype=np.float64), scale,
                 LINE_SEGMENTS, _H_B32, _H_DIFF32, _POSITIONS, MIN_VARIANCE, _MAX_LOG_RATIO,
@@ -282,7 +283,7 @@ class RegionModality:
         expected contour error in pixels). ``optimizer.newton_update`` adds the damping.
         """
         camera = self.camera
-        return line_kernels.gradient_hessian(
+        return line_gradient.gradient_hessian(
             rotation, translation, lines.points_model, lines.centres_uv, lines.normals_uv,
             lines.valid, lines.mean, lines.variance, scale,
             MIN_VARIANCE / (sigma / scale) ** 2, camera.fx, camera.fy, camera.cx, camera.cy)

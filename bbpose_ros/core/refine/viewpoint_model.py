@@ -43,7 +43,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.refine import line_kernels
+from bbpose_ros.core.refine import contour_projection
 
 # The template camera: at TEMPLATE_DISTANCE_M from the model origin, the diameter spans
 # TEMPLATE_DIAMETER_PX pixels (sub-pixel contours; cost grows with the square of it).
@@ -92,7 +92,7 @@ class ViewpointModel:
             (N,) int view indices.
 
         """
-        return line_kernels.closest_views(
+        return contour_projection.closest_views(
             np.ascontiguousarray(self.view_directions, dtype=float),
             np.ascontiguousarray(rotations, dtype=float).reshape(-1, 3, 3),
             np.ascontiguousarray(translations, dtype=float).reshape(-1, 3))

@@ -31,8 +31,8 @@ import numpy as np
 import numpy.typing as npt
 import trimesh
 
-from bbpose_ros.core.files import atomic_output
-from bbpose_ros.core.fingerprints import sha256_of_arrays
+from bbpose_ros.core.data.fingerprints import sha256_of_arrays
+from bbpose_ros.core.util.files import atomic_output
 
 # Stable poses less likely than this are left out (slivers of the hull).
 MIN_PROBABILITY = 0.01

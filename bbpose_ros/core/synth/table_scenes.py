@@ -22,20 +22,17 @@ ambient light and point lights that cast shadows and make highlights; a camera l
 at them from LM-O-like distances and elevations (``TableConfig``), then the image gets a
 camera's colour response, blur, noise and JPEG artefacts.
 
-Layout (world frame: the table is z = 0, z up, the cluster centred on the origin): each
-mesh rests on the table (its lowest hull point at z = 0) and the meshes' footprints (their
-hulls projected on the table) do not overlap, so no two meshes intersect. Ground truth is
-exact, as in ``SyntheticScenes``: amodal boxes projected from the hulls, visible fractions
-from the rendered instance ids over the full silhouettes.
+Where the meshes rest and the camera stands is ``table_layout``'s (world frame: the table
+is z = 0, z up); here the scene is lit, textured and rendered. Ground truth is exact, as in
+``SyntheticScenes``: amodal boxes projected from the hulls, visible fractions from the
+rendered instance ids over the full silhouettes.
 
 Sample ``index`` of seed ``seed`` depends on (seed, index) only.
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bbpose_ros.core.data.models import ObjectModel
@@ -49,101 +46,17 @@ from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_backgroun
 from bbpose_ros.core.synth.effects import apply_camera_effects, color_response
 from bbpose_ros.core.synth.scenes import checked_scene_inputs, scene_meshes, \
     SyntheticSample, visible_instances
-from bbpose_ros.core.synth.stable_poses import load_stable_poses, resting_height, \
-    StablePoses, yaw_rotation
+from bbpose_ros.core.synth.stable_poses import load_stable_poses, StablePoses, yaw_rotation
 from bbpose_ros.core.synth.table_config import TableConfig
+from bbpose_ros.core.synth.table_layout import draw_camera_pose, in_disc, place_meshes, \
+    TableLayout
 
-# Attempts at a free spot on the table per mesh before it is left out.
-_SPOT_ATTEMPTS = 40
-# Smallest gap between two footprints on the table (metres).
-_FOOTPRINT_GAP = 0.002
 # Closest any mesh point may come to the camera plane (metres).
 _MIN_DEPTH = 0.1
 # Side of the table and wall textures (pixels).
 _TEXTURE_SIZE = 512
 # Half extents of a wall (metres): wide and high enough to fill the view behind the table.
 _WALL_HALF_SIZE = (2.5, 1.5)
-
-
-@dataclass(frozen=True)
-class PlacedMesh:
-    """
-    A mesh resting on the table.
-
-    Attributes:
-        key: its renderer key ('target/ape', 'distractor/can', 'shape/3').
-        rotation: (3, 3) model-to-world rotation.
-        translation: (3,) model origin in the world frame, metres (z lifts it onto the table).
-
-    """
-
-    key: str
-    rotation: np.ndarray
-    translation: np.ndarray
-
-
-@dataclass(frozen=True)
-class TableLayout:
-    """
-    The world of one table scene (world frame: table z = 0, z up).
-
-    Attributes:
-        meshes: tuple of ``PlacedMesh``, the targets first.
-        world_to_camera: (4, 4) rigid map of world points to the camera frame (metres).
-        draws: tuple of the ``Draw`` (camera frame) the image was rendered with, one per
-            mesh, in the same order.
-
-    """
-
-    meshes: tuple[PlacedMesh, ...]
-    world_to_camera: np.ndarray
-    draws: tuple[Draw, ...]
-
-
-def look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
-    """
-    (4, 4) world-to-camera map of an OpenCV camera at ``position`` looking at ``target``.
-
-    Unrolled, the camera's x axis is horizontal (the world z axis points up in the image);
-    then it turns by ``roll`` radians about its optical axis. The camera must not look
-    straight down or up.
-    """
-    forward = target - position
-    forward = forward / np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    axes = np.stack([right, np.cross(forward, right), forward])
-    cos, sin = np.cos(roll), np.sin(roll)
-    axes = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]]) @ axes
-    transform = np.eye(4)
-    transform[:3, :3] = axes
-    transform[:3, 3] = -axes @ position
-    return transform
-
-
-def footprint(points_xy: np.ndarray) -> np.ndarray:
-    """(K, 2) convex polygon (counter-clockwise) of (N, 2) points on the table, metres."""
-    hull = cv2.convexHull(points_xy.astype(np.float32), clockwise=False)
-    return hull.reshape(-1, 2).astype(float)
-
-
-def polygons_overlap(first: np.ndarray, second: np.ndarray, gap: float = 0.0) -> bool:
-    """
-    Tell whether two convex polygons (K, 2) come closer than ``gap`` along every axis.
-
-    The separating-axis test over both polygons' edge normals: convex polygons that are
-    ``gap`` apart along some edge normal are disjoint.
-    """
-    for polygon in (first, second):
-        edges = np.roll(polygon, -1, axis=0) - polygon
-        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
-        length = np.linalg.norm(normals, axis=1)
-        normals = normals[length > 1e-12] / length[length > 1e-12, None]
-        a, b = first @ normals.T, second @ normals.T
-        if np.any((a.min(axis=0) > b.max(axis=0) + gap) |
-                  (b.min(axis=0) > a.max(axis=0) + gap)):
-            return False
-    return True
 
 
 class TableScenes:
@@ -263,58 +176,9 @@ class TableScenes:
             raise InputError(f'sample index must be a non-negative integer, got {index}')
         rng = np.random.default_rng([self.seed, 3, int(index)])
         radius = rng.uniform(*self.config.cluster_radius_range)
-        placed = self._layout(rng, radius)
-        return rng, radius, placed, self._camera_pose(rng, radius)
-
-    def _layout(self, rng, radius):
-        """
-        Targets and clutter resting on the table, footprints apart (targets listed first).
-
-        A mesh that finds no free spot in ``_SPOT_ATTEMPTS`` tries, in a disc growing to
-        twice ``radius``, is left out.
-        """
-        config = self.config
-        count = min(int(rng.integers(config.targets_per_image[0],
-                                     config.targets_per_image[1] + 1)), len(self.target_names))
-        keys = [f'target/{self.target_names[i]}'
-                for i in rng.choice(len(self.target_names), count, replace=False)]
-        clutter = int(rng.integers(config.clutter_per_image[0], config.clutter_per_image[1] + 1))
-        keys += [self.clutter_keys[i] for i in rng.integers(len(self.clutter_keys), size=clutter)]
-        # Targets and clutter mixed: clutter stands between the targets too.
-        order = rng.permutation(count + clutter)
-        placed, polygons = {}, []
-        for k in order:
-            key = keys[k]
-            if not key.startswith('shape/') and rng.random() < config.upright_probability:
-                rotation = yaw_rotation(rng.uniform(0.0, 2.0 * np.pi))
-            else:
-                rotation = self.stable[key].sample(rng)
-            points = self.hulls[key] @ rotation.T
-            shape = footprint(points[:, :2])
-            for attempt in range(_SPOT_ATTEMPTS):
-                # The disc grows while the spots tried are taken.
-                spot = _in_disc(rng, radius * (1.0 + attempt / _SPOT_ATTEMPTS))
-                polygon = shape + spot
-                if not any(polygons_overlap(polygon, other, _FOOTPRINT_GAP)
-                           for other in polygons):
-                    polygons.append(polygon)
-                    placed[k] = PlacedMesh(key, rotation, np.array(
-                        [spot[0], spot[1], resting_height(rotation, self.hulls[key])]))
-                    break
-        return [placed[k] for k in sorted(placed)]
-
-    def _camera_pose(self, rng, radius):
-        """Draw the world-to-camera (4, 4) of a camera looking down at the cluster."""
-        config = self.config
-        target = np.append(_in_disc(rng, config.look_offset * radius), 0.0)
-        low, high = np.sin(np.radians(config.camera_elevation_range_deg))
-        elevation = np.arcsin(rng.uniform(low, high))
-        azimuth = rng.uniform(0.0, 2.0 * np.pi)
-        direction = np.array([np.cos(elevation) * np.cos(azimuth),
-                              np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
-        position = target + rng.uniform(*config.camera_distance_range) * direction
-        return look_at(position, target,
-                       np.radians(rng.uniform(*config.inplane_range_deg)))
+        placed = place_meshes(rng, radius, self.config, self.target_names, self.clutter_keys,
+                              self.hulls, self.stable)
+        return rng, radius, placed, draw_camera_pose(rng, radius, self.config)
 
     def _color_gains(self, rng):
         """
@@ -337,7 +201,7 @@ class TableScenes:
         lights = []
         for _ in range(int(rng.integers(config.lights_per_image[0],
                                         config.lights_per_image[1] + 1))):
-            side = _in_disc(rng, config.light_spread)
+            side = in_disc(rng, config.light_spread)
             position = np.array([side[0], side[1], rng.uniform(*config.light_height_range)])
             tint = rng.uniform(0.9, 1.1, 3)
             lights.append(PointLight(tuple(_to_camera(world_to_camera, position)),
@@ -386,12 +250,6 @@ class TableScenes:
 
     def _texture(self, rng):
         return random_background(rng, _TEXTURE_SIZE, _TEXTURE_SIZE, self.backgrounds)
-
-
-def _in_disc(rng, radius):
-    """(2,) a point uniform in the disc of ``radius`` about the origin."""
-    angle = rng.uniform(0.0, 2.0 * np.pi)
-    return radius * np.sqrt(rng.random()) * np.array([np.cos(angle), np.sin(angle)])
 
 
 def _log_uniform(rng, low_high):

@@ -42,10 +42,10 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import atomic_output
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.training.cache import camera_meta, photo_count, render_shards, \
     whole_shards
+from bbpose_ros.core.util.files import atomic_output
 
 if TYPE_CHECKING:
     from bbpose_ros.core.synth.crop_scenes import CropSample, CropScenes

@@ -30,7 +30,7 @@ import time
 from typing import Any
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import write_json_atomic
+from bbpose_ros.core.util.files import write_json_atomic
 
 
 class StagedFolder:

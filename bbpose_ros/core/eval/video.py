@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.files import atomic_output
+from bbpose_ros.core.util.files import atomic_output
 
 # MPEG-4 Part 2, the one MP4 codec OpenCV's pip wheel writes (it has no H.264 encoder);
 # VLC, mpv, ffplay and OpenCV play it, some browsers do not.
