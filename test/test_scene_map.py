@@ -22,7 +22,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.eval.static_scenes import camera_poses, noisy_pose, static_stretches
+from bbpose_ros.core.eval.static_stretches import camera_poses, noisy_pose, static_stretches
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix

@@ -52,7 +52,7 @@ def frame_camera_poses(frames: Sequence[BopFrame], noise: tuple[float, float] | 
 
     Raises InputError naming the first frame whose scene_camera.json has no camera pose.
     """
-    from bbpose_ros.core.eval.static_scenes import noisy_pose
+    from bbpose_ros.core.eval.static_stretches import noisy_pose
     rng = np.random.default_rng(seed)
     poses = []
     for frame in frames:
