@@ -21,6 +21,7 @@ Images are raw (sensor_msgs/Image on the image topic) or image_transport's compr
 """
 
 from collections import defaultdict
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,9 @@ class BagFrame:
         camera: CameraIntrinsics of ``image_rgb`` from the CameraInfo with the same stamp
             (None if absent).
         ground_truth: {object name: [(rotation (3, 3), translation (3,) metres), ...]}.
+        world_from_camera: (4, 4) the camera's pose in ``topics.FIXED_FRAME`` from the
+            bag's /tf at the image's stamp (``write_bop_bag``), or None.
+        scene: the static scene the frame belongs to ('scene_<id>'), or None.
 
     """
 
@@ -57,6 +61,8 @@ class BagFrame:
     image_rgb: np.ndarray
     camera: CameraIntrinsics | None = None
     ground_truth: dict = field(default_factory=dict)
+    world_from_camera: np.ndarray | None = None
+    scene: str | None = None
 
 
 def bag_image_source(path: Path | str, image_topic: str = topics.IMAGE_TOPIC
@@ -87,14 +93,25 @@ def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
     path = Path(path)
     reader = _open(path)
     images, infos, poses = {}, {}, defaultdict(lambda: defaultdict(list))
+    cameras, scenes = {}, {}
     try:
         image_topic, _ = _image_source({c.topic: c.msgtype for c in reader.connections},
                                        image_topic)
         for connection, _, raw in reader.messages():
-            if connection.topic not in (image_topic, camera_info_topic) and \
+            if connection.topic not in (image_topic, camera_info_topic, topics.TF_TOPIC,
+                                        topics.SCENE_TOPIC) and \
                     topics.object_of_ground_truth_topic(connection.topic) is None:
                 continue
             message = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+            if connection.topic == topics.TF_TOPIC:
+                for transform in message.transforms:
+                    if transform.header.frame_id == topics.FIXED_FRAME:
+                        cameras[(stamp_to_ns(transform.header.stamp), transform.child_frame_id)] \
+                            = topics.matrix_from_transform(transform.transform)
+                continue
+            if connection.topic == topics.SCENE_TOPIC:
+                scenes[stamp_to_ns(message.stamp)] = message.frame_id
+                continue
             stamp = stamp_to_ns(message.header.stamp)
             if connection.topic == image_topic:
                 images[stamp] = message
@@ -109,8 +126,10 @@ def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
     frames = []
     for stamp in sorted(images):
         try:
-            frames.append(_frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}),
-                                 rectifier))
+            frames.append(dataclasses.replace(
+                _frame(stamp, images[stamp], infos.get(stamp), poses.get(stamp, {}), rectifier),
+                world_from_camera=cameras.get((stamp, images[stamp].header.frame_id)),
+                scene=scenes.get(stamp)))
         except InputError as err:
             raise InputError(f'bag {path}, {image_topic} at stamp {stamp} ns: {err}') from err
     return frames

@@ -35,6 +35,13 @@ COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
 COMPRESSED_SUFFIX = '/compressed'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
+# The camera's pose in a fixed frame, where the frames have one (BOP's cam_R_w2c, cam_t_w2c),
+# as a robot's TF gives it; and where each static scene begins (its id in the frame_id).
+TF_TOPIC = '/tf'
+TF_TYPE = 'tf2_msgs/msg/TFMessage'
+FIXED_FRAME = 'world'
+SCENE_TOPIC = '/ground_truth/scene'
+SCENE_TYPE = 'std_msgs/msg/Header'
 
 
 def compressed_topic(image_topic: str) -> str:
@@ -71,6 +78,29 @@ def pose_message(stamp_ns: int, frame_id: str, rotation: npt.ArrayLike,
         position=types['geometry_msgs/msg/Point'](*(float(v) for v in translation_m)),
         orientation=types['geometry_msgs/msg/Quaternion'](x=x, y=y, z=z, w=w))
     return types[POSE_TYPE](header=header(stamp_ns, frame_id), pose=pose)
+
+
+def transform_message(stamp_ns: int, parent: str, child: str,
+                      parent_from_child: npt.ArrayLike) -> Any:
+    """tf2_msgs/TFMessage of one transform: the child frame's (4, 4) pose in the parent."""
+    types = TYPESTORE.types
+    matrix = np.asarray(parent_from_child, dtype=float)
+    x, y, z, w = wxyz_to_xyzw(matrix_to_quat_wxyz(matrix[:3, :3]))
+    transform = types['geometry_msgs/msg/Transform'](
+        translation=types['geometry_msgs/msg/Vector3'](*(float(v) for v in matrix[:3, 3])),
+        rotation=types['geometry_msgs/msg/Quaternion'](x=x, y=y, z=z, w=w))
+    stamped = types['geometry_msgs/msg/TransformStamped'](
+        header=header(stamp_ns, parent), child_frame_id=child, transform=transform)
+    return types[TF_TYPE](transforms=[stamped])
+
+
+def matrix_from_transform(transform: Any) -> np.ndarray:
+    """(4, 4) parent_from_child of a geometry_msgs/Transform (metres)."""
+    q, t = transform.rotation, transform.translation
+    matrix = np.eye(4)
+    matrix[:3, :3] = quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w]))
+    matrix[:3, 3] = [t.x, t.y, t.z]
+    return matrix
 
 
 def pose_from_message(message: Any) -> tuple[np.ndarray, np.ndarray]:

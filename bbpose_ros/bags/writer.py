@@ -115,7 +115,9 @@ def write_bop_bag(frames: Sequence[BopFrame], out_path: Path | str, rate_hz: flo
     ``jpeg_quality`` on /camera/image_raw/compressed, as image_transport's compressed
     transport records it), a CameraInfo with the same header, and a PoseStamped (metres) on
     /ground_truth/<object>/pose for each instance whose visible fraction is at least
-    ``min_visib``. Returns the number of frames written.
+    ``min_visib``. A frame with a camera pose (``BopFrame.world_from_camera``) has it on /tf
+    first (world -> ``frame_id``, as a robot's TF), with its scene on /ground_truth/scene (a
+    std_msgs/Header, frame_id 'scene_<id>'). Returns the number of frames written.
     """
     out_path = Path(out_path)
     _check_output(out_path, storage, replace=False)
@@ -155,6 +157,11 @@ def _bop_messages(frames: Sequence[BopFrame], rate_hz: float, start_stamp_ns: in
     for index, frame in enumerate(tqdm(frames, desc='writing bag', unit='frame',
                                        disable=not progress)):
         stamp = start_stamp_ns + int(round(index * 1e9 / rate_hz))
+        if frame.world_from_camera is not None:     # before the image: there when it is
+            yield _serialized(topics.SCENE_TOPIC, topics.SCENE_TYPE, stamp,
+                              topics.header(stamp, f'scene_{frame.scene_id}'))
+            yield _serialized(topics.TF_TOPIC, topics.TF_TYPE, stamp, topics.transform_message(
+                stamp, topics.FIXED_FRAME, frame_id, frame.world_from_camera))
         yield _serialized(image_topic, image_type, stamp, image_of(stamp, frame.load_image()))
         yield _serialized(topics.CAMERA_INFO_TOPIC, topics.CAMERA_INFO_TYPE, stamp,
                           camera_info_message(stamp, frame_id, frame.camera))

@@ -36,6 +36,7 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from std_srvs.srv import Trigger
 from tqdm import tqdm
 import yaml
 
@@ -43,14 +44,15 @@ from bbpose_ros.bags import topics
 from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.bags.reader import bag_image_source, BagFrame, read_bag_frames
 from bbpose_ros.bags.writer import write_bag
-from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
+from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NODE_NAME, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
 from bbpose_ros.core.eval.paired import write_instances
-from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
+from bbpose_ros.core.eval.evaluation import summarize_objects
+from bbpose_ros.core.eval.recorded_poses import ground_truth_instances, map_in_cameras
 from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
 from bbpose_ros.core.eval.video import check_video_path, write_video
@@ -60,6 +62,8 @@ from bbpose_ros.ros.params import resolve_dataset_dir
 from bbpose_ros.ros.params_file import read_params_file
 
 OVERLAY_FRAMES = 4
+# How long a replay waits for the node's map of a frame, and for ~/clear_map to answer.
+MAP_WAIT_S = 10.0
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -74,7 +78,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'like bbpose eval (same table and JSON keys, instance records beside it for '
                     'bbpose compare, plus frames sent/answered '
                     'and timing_ms.end_to_end: image published -> pose received, '
-                    'timing_ms.answer: image published -> MarkerArray received).')
+                    'timing_ms.answer: image published -> MarkerArray received). With '
+                    '--param fixed_frame:=world and a bag with camera poses on /tf (make-bag of '
+                    'bbpose static-scenes output), the node\'s map (~/map/detections) is scored '
+                    'too, in each frame\'s camera by the bag\'s /tf, the map cleared where a '
+                    'new static scene begins: R.map.json and its instance records.')
     parser.add_argument('--bag', type=Path, required=True, help='bag with ground truth')
     parser.add_argument('--json', type=Path, required=True, help='report to write')
     parser.add_argument('--plots', type=Path, default=None,
@@ -99,6 +107,27 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='replay a second time with the node parameter tracking flipped '
                              "and report both runs' means and latencies under 'tracking'")
     parser.set_defaults(func=run)
+
+
+def map_report_path(json_path: Path) -> Path:
+    """Where the map's report of R.json goes: R.map.json (its instances beside it)."""
+    return json_path.with_name(f'{json_path.stem}.map.json')
+
+
+def scene_starts(frames: Sequence[BagFrame], fixed_frame: str, bag: Path) -> list[int] | None:
+    """
+    Stamps of the frames that begin a static scene, with a map (``fixed_frame``); else None.
+
+    Raises InputError when the node maps but the bag holds no camera poses in its frame.
+    """
+    if not fixed_frame:
+        return None
+    if fixed_frame != topics.FIXED_FRAME or all(f.world_from_camera is None for f in frames):
+        raise InputError(f'fixed_frame {fixed_frame!r}: bag {bag} has no camera poses in it '
+                         f'on /tf ({topics.FIXED_FRAME} -> the camera; bbpose make-bag writes '
+                         'them from frames with cam_R_w2c / cam_t_w2c)')
+    return [f.stamp_ns for k, f in enumerate(frames)
+            if k == 0 or f.scene != frames[k - 1].scene]
 
 
 def results_bag_path(json_path: Path) -> Path:
@@ -167,12 +196,15 @@ def per_frame_in_lockstep(overrides: Sequence[str], values: Mapping[str, Any]) -
 
 
 def record(args: argparse.Namespace, objects: list[str], frame_count: int,
-           overrides: list[str], image_topic: str = topics.IMAGE_TOPIC) -> Recording:
+           overrides: list[str], image_topic: str = topics.IMAGE_TOPIC,
+           scene_starts: Sequence[int] | None = None) -> Recording:
     """
     Run the node with parameter ``overrides``, replay the bag into it; return the Recording.
 
     ``image_topic``: the bag's image topic (a compressed one needs the node's
     ``image_transport`` compressed among the overrides: ``with_transport``).
+    ``scene_starts``: with a map (``fixed_frame``), the stamps of the images where a new
+    static scene begins: the node's ``~/clear_map`` is called before each (but the first).
     """
     use_large_image_profile()
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
@@ -180,12 +212,15 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
     process = NodeProcess(args.params, overrides)
     try:
         player = BagPlayer(node, args.bag)
-        recorder = Recorder(node, objects)
+        recorder = Recorder(node, objects, scene_map=scene_starts is not None)
+        before_image = None if scene_starts is None else \
+            MapClearing(node, recorder, process, set(scene_starts))
         with tqdm(total=frame_count, desc='replaying', unit='frame') as bar:
             recording = replay_bag(player, recorder, process, args.paced,
                                    image_topic=image_topic,
                                    answer_timeout_s=args.answer_timeout,
-                                   progress=lambda sent: bar.update(sent - bar.n))
+                                   progress=lambda sent: bar.update(sent - bar.n),
+                                   before_image=before_image)
     finally:
         code = process.stop()
         node.destroy_node()
@@ -194,6 +229,36 @@ def record(args: argparse.Namespace, objects: list[str], frame_count: int,
         print(f'bbpose replay-eval: warning: bbpose_node exited with code {code} on SIGINT',
               file=sys.stderr)
     return recording
+
+
+class MapClearing:
+    """
+    Clears the node's map before the images that start a new static scene.
+
+    Before clearing, the previous image's map is waited for (briefly: a frame TF could not
+    place has none), so that no view of one scene lands in the next scene's map.
+    """
+
+    def __init__(self, node: Node, recorder: Recorder, process: NodeProcess,
+                 starts: set[int]) -> None:
+        self._client = node.create_client(Trigger, f'/{NODE_NAME}/clear_map')
+        self._recorder = recorder
+        self._process = process
+        self._starts = starts
+        self._previous: int | None = None
+
+    def __call__(self, stamp_ns: int) -> None:
+        """Clear the map if the image of ``stamp_ns`` starts a scene (not the first)."""
+        previous, self._previous = self._previous, stamp_ns
+        if previous is None or stamp_ns not in self._starts:
+            return
+        recorder = self._recorder
+        recorder.spin_until(lambda: previous in recorder.recording.map_detections,
+                            MAP_WAIT_S, self._process)
+        if not self._client.wait_for_service(timeout_sec=MAP_WAIT_S):
+            raise InputError(f'{NODE_NAME} offers no ~/clear_map service')
+        future = self._client.call_async(Trigger.Request())
+        recorder.spin_until(future.done, MAP_WAIT_S, self._process)
 
 
 def unscored_poses(recording: Recording, objects: Mapping[str, Mapping]) -> dict[str, int]:
@@ -223,12 +288,23 @@ def run(args: argparse.Namespace) -> int:
             print(f'bbpose replay-eval: {args.params} sets tracking_stream; a lock-step '
                   'replay runs the node per frame (stream mode: --paced)', file=sys.stderr)
         overrides = per_frame_in_lockstep(overrides, values)
-    recording = record(args, list(models), len(frames), overrides, image_topic)
+    starts = scene_starts(frames, values['fixed_frame'], args.bag)
+    recording = record(args, list(models), len(frames), overrides, image_topic, starts)
     bag_path = results_bag_path(args.json)
     write_bag(bag_path, recording.messages, replace=True)
     scores = score_recording(frames, recording.poses, models)
     report = recording_report(recording, scores,
                               score_recording(frames, recording.detections, models))
+    if starts is not None:
+        map_scores = score_recording(frames, map_in_cameras(frames, recording.map_detections),
+                                     models)
+        map_path = map_report_path(args.json)
+        map_report = dict(summarize_objects(map_scores), frames=report['frames'],
+                          mapped=len(recording.map_detections))
+        write_instances(map_path, map_scores)
+        write_json_atomic(map_path, map_report)
+        report['map'] = {'mean': map_report['mean'], 'mapped': map_report['mapped'],
+                         'report': str(map_path)}
     if args.compare_tracking:
         tracking = bool(values['tracking'])
         flipped = record(args, list(models), len(frames),
@@ -248,6 +324,12 @@ def run(args: argparse.Namespace) -> int:
     for name, count in unscored_poses(recording, report['objects']).items():
         print(f'{name}: no ground truth in the bag, {count} poses published (not scored)')
     print(f'frames: {report["frames"]["sent"]} sent, {report["frames"]["answered"]} answered')
+    if 'map' in report:
+        mean = report['map']['mean']
+        print(f'~/map/detections ({report["map"]["mapped"]} frames mapped), in each '
+              f'camera by the bag\'s /tf: ADD(-S) {mean["add_s_recall"]:.3f}, 5cm5deg '
+              f'{mean["cm5deg5"]:.3f}, proj5px {mean["proj5px"]:.3f} '
+              f'(report: {report["map"]["report"]})')
     detections = report['detections']
     print(f'~/detections: {detections["arrays"]} arrays, {detections["detections"]} '
           f'detections, ADD(-S) {detections["mean"]["add_s_recall"]:.3f}, 5cm5deg '

@@ -71,18 +71,20 @@ def poses_to_messages(poses: Sequence[PoseEstimate]) -> list[Pose]:
     return [_pose(q_xyzw, pose.translation) for q_xyzw, pose in zip(quats, poses)]
 
 
-def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: MarkerArrayBuilder
+def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: MarkerArrayBuilder,
+                   labels: Sequence[str] | None = None
                    ) -> tuple[list[tuple[str, PoseStamped]], MarkerArray]:
     """
     Make a frame's outputs: [(object name, PoseStamped)] and the MarkerArray of ``markers``.
 
     ``markers`` is a MarkerArrayBuilder; each pose's Pose message is made once and shared by
-    its PoseStamped and its markers. Everything is stamped with ``header``.
+    its PoseStamped and its markers. Everything is stamped with ``header``. ``labels``:
+    the markers' texts, one per pose (default "name confidence").
     """
     pose_msgs = poses_to_messages(poses)
     stamped = [(pose.object_name, PoseStamped(header=header, pose=pose_msg))
                for pose, pose_msg in zip(poses, pose_msgs)]
-    return stamped, markers(header, poses, pose_msgs)
+    return stamped, markers(header, poses, pose_msgs, labels)
 
 
 def delete_all_markers(header: Header) -> MarkerArray:
@@ -118,17 +120,21 @@ class MarkerArrayBuilder:
         self._colors = {name: _color(model.obj_id) for name, model in models.items()}
 
     def __call__(self, header: Header, poses: Sequence[PoseEstimate],
-                 pose_msgs: Sequence[Pose] | None = None) -> MarkerArray:
+                 pose_msgs: Sequence[Pose] | None = None,
+                 labels: Sequence[str] | None = None) -> MarkerArray:
         """
         Return the MarkerArray of a frame's poses, stamped with its header.
 
-        ``pose_msgs``: the poses' geometry_msgs/Pose if already made (``poses_to_messages``).
+        ``pose_msgs``: the poses' geometry_msgs/Pose if already made (``poses_to_messages``);
+        ``labels``: the label of each pose (default "name confidence").
         """
+        if labels is None:
+            labels = [f'{pose.object_name} {pose.confidence:.2f}' for pose in poses]
         markers = [Marker(header=header, action=Marker.DELETEALL)]
         instance = {}
         if pose_msgs is None:
             pose_msgs = poses_to_messages(poses)
-        for pose, pose_msg in zip(poses, pose_msgs):
+        for pose, pose_msg, text in zip(poses, pose_msgs, labels):
             name = pose.object_name
             k = instance[name] = instance.get(name, -1) + 1
             common = {'header': header, 'ns': name, 'action': Marker.ADD, 'pose': pose_msg,
@@ -136,7 +142,7 @@ class MarkerArrayBuilder:
             box = Marker(id=2 * k, type=Marker.LINE_LIST, points=self._points[name], **common)
             box.scale.x = BOX_LINE_WIDTH_M
             label = Marker(id=2 * k + 1, type=Marker.TEXT_VIEW_FACING,
-                           text=f'{name} {pose.confidence:.2f}', **common)
+                           text=text, **common)
             label.scale.z = LABEL_HEIGHT_M
             markers += [box, label]
         return MarkerArray(markers=markers)

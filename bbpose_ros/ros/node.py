@@ -42,7 +42,10 @@ Publications, stamped with the image's header (stamp and frame_id):
   DELETEALL when the node stops answering;
 * ``~/debug_image`` (sensor_msgs/Image rgb8), only while it has subscribers;
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) at 1 Hz, WARN while no image came for
-  ``intake.STALE_INPUT_S``.
+  ``intake.STALE_INPUT_S``;
+* with ``fixed_frame`` set, the map of the scene in that frame, fused over the camera's
+  motion from TF: ``~/map/detections``, ``~/map/<object>/pose``, ``~/map/markers`` and
+  ``/tf``, and the service ``~/clear_map`` (``scene_mapping.py``).
 
 The subscription callbacks only check, decode and pair (``intake.py``); a worker thread
 (``worker.py``) runs the pipeline on the newest pair, so frames arriving while it is busy
@@ -74,6 +77,7 @@ from bbpose_ros.ros.node_pipeline import build_node_pipeline, NodePipeline
 from bbpose_ros.ros.params import declare_parameters, NODE_NAME, NodeConfig
 from bbpose_ros.ros.publishers import FramePublishers
 from bbpose_ros.ros.rebuild import PipelineRebuilder
+from bbpose_ros.ros.scene_mapping import SceneMapping
 from bbpose_ros.ros.throttle import ProblemLog
 from bbpose_ros.ros.transitions import failure_reason, guard_change_state, NodeTransitions
 from bbpose_ros.ros.transitions import SUCCESS
@@ -90,7 +94,8 @@ class BBPoseNode(LifecycleNode):
     The node only wires its parts together: ``NodeTransitions`` (what each lifecycle
     transition does), ``ParameterVerdicts`` (run-time parameter sets), ``FrameIntake`` (the
     subscriptions and their checks), ``FrameWorker`` (the pipeline thread) and
-    ``FramePublishers`` (its outputs), with ``PipelineRebuilder`` holding the pipeline.
+    ``FramePublishers`` (its outputs), ``SceneMapping`` (TF and the map in
+    ``fixed_frame``), with ``PipelineRebuilder`` holding the pipeline.
 
     Args:
         **kwargs: passed to rclpy's LifecycleNode (e.g. parameter_overrides, context).
@@ -110,12 +115,15 @@ class BBPoseNode(LifecycleNode):
             refuse=lambda names, text: self._problems.warn('parameters_refused', names, text),
             reason=failure_reason)
         self._outputs = FramePublishers(self)
+        self._mapping = SceneMapping(self, self._problems)
         self._worker = FrameWorker(lambda: self._rebuilder.pipeline, self._outputs,
                                    self.stats, self._problems, self.get_logger(), self.context,
-                                   decode=lambda frame, info: self._intake.decode(frame, info))
+                                   decode=lambda frame, info: self._intake.decode(frame, info),
+                                   mapping=self._mapping)
         self._intake = FrameIntake(self, self.stats, self._problems, self._worker.offer)
         self._transitions = NodeTransitions(self, self._rebuilder, self._outputs,
-                                            self._intake, self._worker, self._build)
+                                            self._intake, self._worker, self._build,
+                                            self._mapping)
         self._verdicts = ParameterVerdicts(self, self._rebuilder, self._problems,
                                            self._transitions.add_objects,
                                            lambda: self._transitions.state)

@@ -128,6 +128,11 @@ PARAMETERS = {
         '~/', 'Prefix of the TF child frames and Detection3D ids; a leading ~/ stands for the '
         "node's name and a slash (bbpose_node/ape); empty: the bare object names.",
         'frame', check=check_tf_prefix),
+    'fixed_frame': ParameterSpec(
+        '', "The robot's fixed frame (e.g. world, base_link): the camera's pose in it at each "
+        "image's stamp, from /tf and /tf_static, fuses each object's poses over the "
+        "camera's motion into a map published in it (~/map/...); empty: no map.",
+        'configure', check=check_tf_prefix),
     'max_image_pixels': ParameterSpec(
         33_554_432, 'Images of more pixels (width x height) are dropped unread.', 'frame',
         value_range=(1, 2 ** 31 - 1)),

@@ -44,6 +44,7 @@ from bbpose_ros.ros.node_pipeline import NodePipeline, stop_background
 from bbpose_ros.ros.params import NodeConfig, parameter_values, read_config
 from bbpose_ros.ros.publishers import FramePublishers
 from bbpose_ros.ros.rebuild import PipelineRebuilder
+from bbpose_ros.ros.scene_mapping import SceneMapping
 from bbpose_ros.ros.worker import FrameWorker
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -61,18 +62,20 @@ class NodeTransitions:
         intake: subscribes on activate, unsubscribes on deactivate.
         worker: started on activate, stopped on deactivate.
         build: makes the NodePipeline of a NodeConfig; raises on failure.
+        mapping: the map in ``fixed_frame``: made by configure, listens to TF while active.
 
     """
 
     def __init__(self, node: LifecycleNode, rebuilder: PipelineRebuilder,
                  publishers: FramePublishers, intake: FrameIntake, worker: FrameWorker,
-                 build: Callable[[NodeConfig], NodePipeline]) -> None:
+                 build: Callable[[NodeConfig], NodePipeline], mapping: SceneMapping) -> None:
         self._node = node
         self._rebuilder = rebuilder
         self._publishers = publishers
         self._intake = intake
         self._worker = worker
         self._build = build
+        self._mapping = mapping
         self.failure: str | None = None          # the reason of the last failed transition
         self._serving = False
         self._finalized = False                  # shut down: no transition leaves it
@@ -98,6 +101,7 @@ class NodeTransitions:
         self._rebuilder.install(config, pipeline)
         self.failure = None
         self._publishers.create(config.objects)
+        self._mapping.create(config.objects)
         self._node.get_logger().info(f'configured: {", ".join(config.objects)}')
         return SUCCESS
 
@@ -106,6 +110,7 @@ class NodeTransitions:
         config = self._rebuilder.config
         self._worker.start(self._intake.stream)
         self._intake.subscribe(config.qos, config.image_transport)
+        self._mapping.subscribe()
         self._serving = True
         self._node.get_logger().info(
             f'serving {", ".join(config.objects)} on {self._intake.image_topic} + '
@@ -124,6 +129,7 @@ class NodeTransitions:
         stop_background(self._rebuilder.pipeline, for_good=True)
         self._rebuilder.release()
         self._publishers.destroy()
+        self._mapping.destroy()
 
     def shut_down(self) -> None:
         """Release everything, from whichever state: finalized."""
@@ -138,6 +144,7 @@ class NodeTransitions:
     def add_objects(self, names: Sequence[str]) -> None:
         """Create the pose publishers of object names a parameter set adds."""
         self._publishers.add_objects(names, enabled=self._serving)
+        self._mapping.add_objects(names, enabled=self._serving)
 
     def _stop_serving(self) -> None:
         if not self._serving:
@@ -145,6 +152,7 @@ class NodeTransitions:
         self._serving = False
         self._intake.unsubscribe()
         self._worker.stop()
+        self._mapping.unsubscribe()
         stop_background(self._rebuilder.pipeline)     # stream mode's background job
         if self._node.context.ok():   # the last boxes go from RViz: nothing answers them now
             self._publishers.clear_markers()

@@ -40,6 +40,7 @@ from bbpose_ros.ros.diagnostics import NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text
 from bbpose_ros.ros.node_pipeline import NodePipeline
 from bbpose_ros.ros.publishers import FramePublishers
+from bbpose_ros.ros.scene_mapping import SceneMapping
 from bbpose_ros.ros.throttle import ProblemLog
 
 # A stop waits this long for the worker to finish the frame in hand (one frame's work).
@@ -59,14 +60,15 @@ class FrameWorker:
         context: the node's context; once it is shut down a failure is not reported.
         decode: decodes a compressed Frame and makes its CameraModel from its CameraInfo;
             None when the frame is dropped (counted and logged by it).
+        mapping: takes each answered frame's poses into the map (with ``fixed_frame``).
 
     """
 
     def __init__(self, pipeline: Callable[[], NodePipeline | None],
                  publishers: FramePublishers, stats: NodeStats, problems: ProblemLog,
                  logger: RcutilsLogger, context: Context,
-                 decode: Callable[[Frame, CameraInfo], tuple[Frame, CameraModel] | None]
-                 ) -> None:
+                 decode: Callable[[Frame, CameraInfo], tuple[Frame, CameraModel] | None],
+                 mapping: SceneMapping) -> None:
         self._pipeline = pipeline
         self._publishers = publishers
         self._stats = stats
@@ -74,6 +76,7 @@ class FrameWorker:
         self._logger = logger
         self._context = context
         self._decode = decode
+        self._mapping = mapping
         self._slot = LatestSlot()
         self._thread: threading.Thread | None = None
         self._rectifier = Rectifier()             # its maps are kept from frame to frame
@@ -107,13 +110,13 @@ class FrameWorker:
             frame, camera = item
             pipeline = self._pipeline()     # a run-time rebuild may swap it
             try:
-                decode_ms = {}
+                extra_ms = {}
                 if frame.image_rgb is None:            # compressed: decoded now it is taken
                     start = time.perf_counter()
                     if (decoded := self._decode(frame, camera)) is None:
                         continue                       # dropped: counted and logged
                     frame, camera = decoded
-                    decode_ms['image_decode'] = (time.perf_counter() - start) * 1e3
+                    extra_ms['image_decode'] = (time.perf_counter() - start) * 1e3
                 if frame.stream != stream and isinstance(pipeline.pipeline, PoseTracker):
                     pipeline.pipeline.reset()
                     self._logger.info('tracks reset: the image stamps went back')
@@ -128,6 +131,11 @@ class FrameWorker:
                     result = pipeline.pipeline.estimate(image_rgb, camera.intrinsics)
                 self._publishers.publish(frame.header, image_rgb, camera.intrinsics,
                                          result.poses, pipeline)
+                start = time.perf_counter()
+                if self._mapping.observe(frame.header, camera.intrinsics, result.poses,
+                                         pipeline):
+                    self._stats.count('mapped')
+                    extra_ms['map'] = (time.perf_counter() - start) * 1e3
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 if not self._context.ok():
                     return        # shutting down: the frame in hand is abandoned
@@ -136,6 +144,6 @@ class FrameWorker:
                                     f'{type(err).__name__}: {err}')
                 continue
             self._stats.add_timings(dict(
-                result.timings_ms, **decode_ms,
+                result.timings_ms, **extra_ms,
                 node=(time.perf_counter() - frame.received_s) * 1e3))
             self._stats.count('answered')

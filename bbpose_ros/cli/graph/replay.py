@@ -114,10 +114,11 @@ class Recorder:
         node: the rclpy Node that owns the subscriptions.
         objects: object names whose ``/<node>/<object>/pose`` topics are recorded; also
             ``/<node>/detections``, ``/<node>/markers``, ``/tf`` and ``/diagnostics``.
+        scene_map: also record ``/<node>/map/detections`` (a node with ``fixed_frame``).
 
     """
 
-    def __init__(self, node: Node, objects: Iterable[str]) -> None:
+    def __init__(self, node: Node, objects: Iterable[str], scene_map: bool = False) -> None:
         self.node = node
         self.recording = Recording()
         self.executor = SingleThreadedExecutor(context=node.context)
@@ -129,6 +130,8 @@ class Recorder:
         self.topics[f'/{NODE_NAME}/detections'] = (Detection3DArray, self._on_detections, None)
         self.topics['/tf'] = (TFMessage, self._on_tf, None)
         self.topics['/diagnostics'] = (DiagnosticArray, self._on_diagnostics, None)
+        if scene_map:
+            self.topics[f'/{NODE_NAME}/map/detections'] = (Detection3DArray, self._on_map, None)
         for topic, (cls, handler, name) in self.topics.items():
             node.create_subscription(cls, topic, self._callback(topic, cls, handler, name), 100,
                                      raw=True)
@@ -178,6 +181,12 @@ class Recorder:
              *topics.pose_from_message(detection.results[0].pose))
             for detection in message.detections]
 
+    def _on_map(self, message, _):
+        self.recording.map_detections[stamp_to_ns(message.header.stamp)] = [
+            (detection.results[0].hypothesis.class_id,
+             *topics.pose_from_message(detection.results[0].pose))
+            for detection in message.detections]
+
     def _on_tf(self, message, _):
         for transform in message.transforms:
             stamp = stamp_to_ns(transform.header.stamp)
@@ -198,7 +207,8 @@ class Recorder:
 def replay_bag(player: BagPlayer, recorder: Recorder, process: NodeProcess,
                paced: bool = False, image_topic: str = topics.IMAGE_TOPIC,
                start_timeout_s: float = 120.0, answer_timeout_s: float = 30.0,
-               progress: Callable[[int], object] | None = None) -> Recording:
+               progress: Callable[[int], object] | None = None,
+               before_image: Callable[[int], object] | None = None) -> Recording:
     """
     Play every message of the bag into the node; return the Recording.
 
@@ -210,7 +220,8 @@ def replay_bag(player: BagPlayer, recorder: Recorder, process: NodeProcess,
     waited for up to ``answer_timeout_s``. Waits up to ``start_timeout_s`` for the node to
     connect; ``progress`` is called with the number of images sent. ``image_topic`` holds
     the frames (sensor_msgs/Image, or CompressedImage for a node with ``image_transport``
-    compressed).
+    compressed). ``before_image`` is called with each image's stamp before it is sent
+    (``replay-eval`` clears the node's map there where a new scene begins).
     """
     recording = recorder.recording
     inputs = [publisher for topic, publisher in player.publishers.items()
@@ -230,6 +241,8 @@ def replay_bag(player: BagPlayer, recorder: Recorder, process: NodeProcess,
             if not paced:
                 _wait_answer(recorder, last, answer_timeout_s, process)
             last = stamp_to_ns(deserialize_message(raw, player.types[topic]).header.stamp)
+            if before_image is not None:
+                before_image(last)
             recording.published_s[last] = time.perf_counter()
             if progress is not None:
                 progress(len(recording.published_s))

@@ -33,6 +33,7 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.eval.evaluation import InstanceScore, pose_box, score_frame
 from bbpose_ros.core.eval.evaluation import summarize_objects
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rigid import invert_rigid
 from bbpose_ros.core.latency import timing_summary
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
@@ -68,6 +69,7 @@ class Recording:
         pose_received_s: {stamp: when its last PoseStamped arrived}.
         detections: {stamp: [(class id, rotation (3, 3), translation (3,) metres)]} of its
             Detection3DArray (an empty list: an array without detections).
+        map_detections: the same of its ~/map/detections, in its ``fixed_frame``.
         transforms: {stamp: number of /tf transforms}.
         timings_ms: the node's stage latencies from its last diagnostics:
             {stage: {'median', 'p95'}}.
@@ -81,6 +83,7 @@ class Recording:
     poses: dict[int, list[RecordedPose]] = field(default_factory=dict)
     pose_received_s: dict[int, float] = field(default_factory=dict)
     detections: dict[int, list[RecordedPose]] = field(default_factory=dict)
+    map_detections: dict[int, list[RecordedPose]] = field(default_factory=dict)
     transforms: dict[int, int] = field(default_factory=dict)
     timings_ms: dict[str, dict[str, float]] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
@@ -125,6 +128,28 @@ def score_recording(frames: Sequence[GroundTruthFrame],
                                               estimates, frame.camera)):
             scores[score.object_name].append(replace(score, key=f'{frame.stamp_ns}/{k}'))
     return scores
+
+
+def map_in_cameras(frames: Sequence[GroundTruthFrame],
+                   map_poses: Mapping[int, Sequence[RecordedPose]]
+                   ) -> dict[int, list[RecordedPose]]:
+    """
+    The node's map poses (fixed frame) of each frame, carried into its camera frame.
+
+    ``frames``: BagFrames with ``world_from_camera`` (the bag's /tf); a frame without one,
+    or without a map message, gets no poses.
+    """
+    carried = {}
+    for frame in frames:
+        world_from_camera = getattr(frame, 'world_from_camera', None)
+        if world_from_camera is None or frame.stamp_ns not in map_poses:
+            continue
+        camera_from_world = invert_rigid(world_from_camera)
+        carried[frame.stamp_ns] = [
+            (name, camera_from_world[:3, :3] @ rotation,
+             camera_from_world[:3, :3] @ translation + camera_from_world[:3, 3])
+            for name, rotation, translation in map_poses[frame.stamp_ns]]
+    return carried
 
 
 def latencies_ms(recording: Recording) -> list[dict[str, float]]:

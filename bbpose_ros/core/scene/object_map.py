@@ -37,6 +37,7 @@ the camera's error does not move the pose across the ray.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -109,6 +110,7 @@ class _Entry:
         self.views: list[list[ViewedPose]] = []
         self.agree = np.zeros((0, 0), dtype=bool)
         self.fused: FusedPose | None = None
+        self.seen_ns = 0
 
     @property
     def candidates(self) -> list[ViewedPose]:
@@ -120,9 +122,18 @@ class _Entry:
         return [c for c, inlier in zip(self.candidates, self.fused.inliers) if inlier]
 
     def add(self, view: list[ViewedPose]) -> None:
-        """Keep a view: in place of the newest where the rays hardly differ, else added."""
+        """
+        Take a view (its candidates): added, in place of the newest, or only noted as seen.
+
+        A view from where the newest was taken (rays within ``map_keyframe_deg``) that
+        agrees with the fused pose adds nothing but the time it was seen; one that
+        disagrees replaces the newest (a moved object shows so to a still camera).
+        """
         if self.views and _ray_angle_deg(self.views[-1][0], view[0]) < \
                 self.options.map_keyframe_deg:
+            if self._agrees_with_fused(view[0]):
+                self.seen_ns = max(self.seen_ns, view[0].stamp_ns)
+                return
             self._drop(len(self.views) - 1)
         if len(self.views) == self.options.map_window:
             self._drop(0)
@@ -134,6 +145,14 @@ class _Entry:
         self.fused = fuse_views(self.candidates, self.agree, self.symmetries, self.options,
                                 self.tolerance)
         self._restart_if_moved()
+        self.seen_ns = max([self.seen_ns] + [c.stamp_ns for c in self.inlier_candidates()])
+
+    def _agrees_with_fused(self, candidate):
+        fused = self.fused
+        as_view = dataclasses.replace(candidate, rotation=fused.rotation,
+                                      translation=fused.translation,
+                                      covariance=fused.covariance)
+        return bool(agreement([candidate], [as_view], self.symmetries, self.options)[0, 0])
 
     def _drop(self, index):
         start = sum(len(v) for v in self.views[:index])
@@ -212,8 +231,7 @@ class ObjectMap:
             fused = entry.fused
             found.append(MapObject(name, fused.rotation, fused.translation, fused.covariance,
                                    fused.confidence, int(fused.inliers.sum()),
-                                   entry.views[0][0].stamp_ns,
-                                   max(c.stamp_ns for c in entry.inlier_candidates())))
+                                   entry.views[0][0].stamp_ns, entry.seen_ns))
         return found
 
     def poses_in_view(self, world_from_camera: np.ndarray, camera: CameraIntrinsics,
