@@ -71,20 +71,18 @@ def poses_to_messages(poses: Sequence[PoseEstimate]) -> list[Pose]:
     return [_pose(q_xyzw, pose.translation) for q_xyzw, pose in zip(quats, poses)]
 
 
-def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: MarkerArrayBuilder,
-                   labels: Sequence[str] | None = None
+def frame_messages(header: Header, poses: Sequence[PoseEstimate], markers: MarkerArrayBuilder
                    ) -> tuple[list[tuple[str, PoseStamped]], MarkerArray]:
     """
     Make a frame's outputs: [(object name, PoseStamped)] and the MarkerArray of ``markers``.
 
     ``markers`` is a MarkerArrayBuilder; each pose's Pose message is made once and shared by
-    its PoseStamped and its markers. Everything is stamped with ``header``. ``labels``:
-    the markers' texts, one per pose (default "name confidence").
+    its PoseStamped and its markers. Everything is stamped with ``header``.
     """
     pose_msgs = poses_to_messages(poses)
     stamped = [(pose.object_name, PoseStamped(header=header, pose=pose_msg))
                for pose, pose_msg in zip(poses, pose_msgs)]
-    return stamped, markers(header, poses, pose_msgs, labels)
+    return stamped, markers(header, poses, pose_msgs)
 
 
 def delete_all_markers(header: Header) -> MarkerArray:

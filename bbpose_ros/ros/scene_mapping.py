@@ -24,11 +24,14 @@ wheel venv has no tf2_ros). After a frame's own outputs are published, the camer
 (``core.scene.object_map.ObjectMap``), and the map is published, stamped with the image's
 stamp in ``fixed_frame``:
 
-* ``~/map/detections`` (vision_msgs/Detection3DArray): one Detection3D per object, id its
-  TF child frame, score the map's confidence, the position covariance the map's;
 * ``~/map/<object>/pose`` (geometry_msgs/PoseStamped);
-* ``/tf``: ``fixed_frame`` -> ``<tf_prefix>map/<object>`` (with ``publish_tf``);
-* ``~/map/markers`` (visualization_msgs/MarkerArray): box and "name confidence age" label.
+* ``~/map/detections`` (vision_msgs/Detection3DArray), while subscribed: one Detection3D
+  per object, id its TF child frame, score the map's confidence, the position covariance
+  the map's;
+* ``/tf``, with ``publish_tf`` and while subscribed: ``fixed_frame`` ->
+  ``<tf_prefix>map/<object>``;
+* ``~/map/markers`` (visualization_msgs/MarkerArray), while subscribed: box and "name
+  confidence age" label.
 
 The service ``~/clear_map`` (std_srvs/Trigger) forgets every object (a new scene). A frame
 whose camera pose TF cannot give is answered per frame only, counted
@@ -196,24 +199,27 @@ class SceneMapping:
             return self._buffer.lookup(self.fixed_frame, frame_id, stamp_to_ns(header.stamp))
 
     def _publish(self, header, objects, now_ns, pipeline):
-        node = self._node
+        """Publish the map: poses always, detections, TF and markers while subscribed."""
+        node, publishers = self._node, self._publishers
         poses = [PoseEstimate(Detection(o.object_name, o.confidence, np.zeros(4)), o.rotation,
                               o.translation, o.confidence, 'map') for o in objects]
-        labels = [f'{o.object_name} {o.confidence:.2f} {o.age_s(now_ns):.0f}s' for o in objects]
-        stamped, markers = conversions.frame_messages(header, poses, pipeline.markers, labels)
-        for name, message in stamped:
-            self._poses[name].publish(message)
-        pose_msgs = [message.pose for _, message in stamped]
+        pose_msgs = conversions.poses_to_messages(poses)
+        for pose, pose_msg in zip(poses, pose_msgs):
+            self._poses[pose.object_name].publish(PoseStamped(header=header, pose=pose_msg))
         prefix = detections.resolve_prefix(node.get_parameter('tf_prefix').value,
                                            node.get_fully_qualified_name()) + MAP_FRAME_PREFIX
-        array = pipeline.detections(header, poses, pose_msgs, prefix)
-        for detection, item in zip(array.detections, objects):
-            _set_position_covariance(detection.results[0].pose.covariance, item)
-        self._publishers['detections'].publish(array)
-        if poses and node.get_parameter('publish_tf').value:
-            self._publishers['tf'].publish(detections.transforms(header, poses, pose_msgs,
-                                                                 prefix))
-        self._publishers['markers'].publish(markers)
+        if publishers['detections'].get_subscription_count() > 0:
+            array = pipeline.detections(header, poses, pose_msgs, prefix)
+            for detection, item in zip(array.detections, objects):
+                _set_position_covariance(detection.results[0].pose.covariance, item)
+            publishers['detections'].publish(array)
+        if poses and node.get_parameter('publish_tf').value and \
+                publishers['tf'].get_subscription_count() > 0:
+            publishers['tf'].publish(detections.transforms(header, poses, pose_msgs, prefix))
+        if publishers['markers'].get_subscription_count() > 0:
+            labels = [f'{o.object_name} {o.confidence:.2f} {o.age_s(now_ns):.0f}s'
+                      for o in objects]
+            publishers['markers'].publish(pipeline.markers(header, poses, pose_msgs, labels))
 
     def _on_tf(self, message: TFMessage, static: bool = False) -> None:
         topic = '/tf_static' if static else '/tf'

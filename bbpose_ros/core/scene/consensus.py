@@ -29,19 +29,19 @@ agreeing with that fused pose (again one a view) are fused once more.
 
 Symmetry transforms are (S, 4, 4), identity first (``ObjectModel.symmetry_transforms``):
 a pose (R, t) equals (R @ S_R, R @ S_t + t) for each.
+
+Poses come stacked: rotations (N, 3, 3), translations (N, 3) metres, covariances (N, 3, 3)
+square metres, weights (N,) and view groups (N,) int, one view's candidates consecutive.
+The loops are compiled (numba): a map refits an object at every view it takes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
+import numba
 import numpy as np
-
-from bbpose_ros.core.geometry.rotations import nearest_rotation
-from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.scene.views import ViewedPose
 
 # The 99 % quantile of chi-square with 3 degrees of freedom: a translation gate.
 CHI2_3DOF_99 = 11.345
@@ -70,105 +70,158 @@ class FusedPose:
     confidence: float
 
 
-def _stack(views, symmetries):
-    rotations = np.array([v.rotation for v in views])
-    translations = np.array([v.translation for v in views])
-    covariances = np.array([v.covariance for v in views])
-    weights = np.array([max(v.confidence, 1e-3) for v in views])
-    return rotations, translations, covariances, weights
+@numba.njit(cache=True, nogil=True)
+def _closest_copy(reference, rotation, symmetry_r):
+    """Index of the symmetry S making rotation @ S closest to ``reference``, and its trace."""
+    best, best_trace = 0, -np.inf
+    for s in range(symmetry_r.shape[0]):
+        trace = 0.0
+        for a in range(3):
+            for b in range(3):
+                rs = 0.0
+                for c in range(3):
+                    rs += rotation[a, c] * symmetry_r[s, c, b]
+                trace += reference[a, b] * rs
+        if trace > best_trace:
+            best, best_trace = s, trace
+    return best, best_trace
 
 
-def _symmetric_copies(rotations, translations, symmetries):
-    """(N, S, 3, 3) rotations and (N, S, 3) translations of each view under each symmetry."""
-    copies_r = np.einsum('nab,sbc->nsac', rotations, symmetries[:, :3, :3])
-    copies_t = translations[:, None] + np.einsum('nab,sb->nsa', rotations, symmetries[:, :3, 3])
-    return copies_r, copies_t
+@numba.njit(cache=True, nogil=True)
+def _aligned(rotation, translation, symmetry_r, symmetry_t, s):
+    """The pose (R @ S_R, R @ S_t + t) of symmetry ``s``."""
+    return rotation @ symmetry_r[s], translation + rotation @ symmetry_t[s]
 
 
-def _closest(reference_r, copies_r):
-    """For each (N, S) copy set, the copy closest to (3, 3) ``reference_r``: indices, deg."""
-    traces = np.einsum('ab,nsab->ns', reference_r, copies_r)
-    best = np.argmax(traces, axis=1)
-    cosine = np.clip((traces[np.arange(len(best)), best] - 1.0) / 2.0, -1.0, 1.0)
-    return best, np.degrees(np.arccos(cosine))
-
-
+@numba.njit(cache=True, nogil=True)
 def _mahalanobis2(delta, covariance):
-    """(...,) squared Mahalanobis lengths of (..., 3) vectors under (..., 3, 3) covariances."""
-    return np.einsum('...a,...a->...', delta, np.linalg.solve(covariance, delta[..., None])[..., 0])
+    return delta @ np.linalg.solve(covariance, delta)
 
 
-def agreement(views_a: Sequence[ViewedPose], views_b: Sequence[ViewedPose],
-              symmetries: np.ndarray, options: PipelineOptions) -> np.ndarray:
-    """(A, B) bool: which poses of ``views_a`` agree with which of ``views_b`` (module doc)."""
-    if not views_a or not views_b:
-        return np.zeros((len(views_a), len(views_b)), dtype=bool)
-    rotations_a, translations_a, covariances_a, _ = _stack(views_a, symmetries)
-    rotations_b, translations_b, covariances_b, _ = _stack(views_b, symmetries)
-    copies_r, copies_t = _symmetric_copies(rotations_b, translations_b, symmetries)
-    traces = np.einsum('iab,jsab->ijs', rotations_a, copies_r)
-    best = np.argmax(traces, axis=2)
-    angle = np.degrees(np.arccos(np.clip((np.take_along_axis(traces, best[..., None], 2)[..., 0]
-                                           - 1.0) / 2.0, -1.0, 1.0)))
-    aligned_t = copies_t[np.arange(len(views_b))[None], best]
-    delta = translations_a[:, None] - aligned_t
-    distance2 = _mahalanobis2(delta, covariances_a[:, None] + covariances_b[None])
-    return (angle < options.map_gate_deg) & (distance2 < CHI2_3DOF_99)
+@numba.njit(cache=True, nogil=True)
+def _agreement(rotations_a, translations_a, covariances_a, rotations_b, translations_b,
+               covariances_b, symmetry_r, symmetry_t, min_trace, chi2):
+    agree = np.zeros((rotations_a.shape[0], rotations_b.shape[0]), dtype=np.bool_)
+    for i in range(rotations_a.shape[0]):
+        for j in range(rotations_b.shape[0]):
+            s, trace = _closest_copy(rotations_a[i], rotations_b[j], symmetry_r)
+            if trace < min_trace:
+                continue
+            _, aligned_t = _aligned(rotations_b[j], translations_b[j], symmetry_r, symmetry_t, s)
+            agree[i, j] = _mahalanobis2(translations_a[i] - aligned_t,
+                                        covariances_a[i] + covariances_b[j]) < chi2
+    return agree
 
 
-def _fuse(rotations, translations, covariances, weights, reference_r, symmetries):
-    """Fuse views aligned to ``reference_r`` under their closest symmetry: R, t, covariance."""
-    copies_r, copies_t = _symmetric_copies(rotations, translations, symmetries)
-    best, _ = _closest(reference_r, copies_r)
-    index = np.arange(len(best))
-    aligned_r, aligned_t = copies_r[index, best], copies_t[index, best]
-    rotation = nearest_rotation(np.einsum('n,nab->ab', weights, aligned_r))
-    information = np.linalg.inv(covariances)
-    weighted = weights[:, None, None] * information
-    translation = np.linalg.solve(weighted.sum(0), np.einsum('nab,nb->a', weighted, aligned_t))
-    return rotation, translation, np.linalg.inv(information.sum(0))
+def agreement(rotations_a: np.ndarray, translations_a: np.ndarray, covariances_a: np.ndarray,
+              rotations_b: np.ndarray, translations_b: np.ndarray, covariances_b: np.ndarray,
+              symmetries: np.ndarray, gate_deg: float) -> np.ndarray:
+    """(A, B) bool: which poses of set a agree with which of set b (module docstring)."""
+    return _agreement(rotations_a, translations_a, covariances_a, rotations_b, translations_b,
+                      covariances_b, np.ascontiguousarray(symmetries[:, :3, :3]),
+                      np.ascontiguousarray(symmetries[:, :3, 3]), _min_trace(gate_deg),
+                      CHI2_3DOF_99)
 
 
+def _min_trace(gate_deg):
+    """The trace of R_a^T R_b at which the angle between them reaches the gate."""
+    return 1.0 + 2.0 * math.cos(math.radians(gate_deg))
+
+
+@numba.njit(cache=True, nogil=True)
 def _one_a_view(candidates, weights, groups):
     """(N,) bool: of the ``candidates`` (N,) bool, the most confident of each view group."""
-    score = np.where(candidates, weights, -1.0)
-    best = np.zeros(len(groups), dtype=bool)
-    for view in np.unique(groups[candidates]):
-        members = np.flatnonzero(groups == view)
-        best[members[np.argmax(score[members])]] = True
-    return best
+    chosen = np.zeros(candidates.shape[0], dtype=np.bool_)
+    k = 0
+    while k < groups.shape[0]:
+        end, best = k, -1
+        while end < groups.shape[0] and groups[end] == groups[k]:
+            if candidates[end] and (best < 0 or weights[end] > weights[best]):
+                best = end
+            end += 1
+        if best >= 0:
+            chosen[best] = True
+        k = end
+    return chosen
 
 
-def fuse_views(views: Sequence[ViewedPose], agree: np.ndarray, symmetries: np.ndarray,
-               options: PipelineOptions, tolerance_m: float) -> FusedPose:
+@numba.njit(cache=True, nogil=True)
+def _fuse(rotations, translations, covariances, weights, chosen, reference, symmetry_r,
+          symmetry_t):
+    """Fuse the chosen poses aligned to ``reference``: rotation, translation, covariance."""
+    mean_r = np.zeros((3, 3))
+    weighted, information, pull = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
+    for n in range(rotations.shape[0]):
+        if not chosen[n]:
+            continue
+        s, _ = _closest_copy(reference, rotations[n], symmetry_r)
+        aligned_r, aligned_t = _aligned(rotations[n], translations[n], symmetry_r, symmetry_t,
+                                        s)
+        mean_r += weights[n] * aligned_r
+        inverse = np.linalg.inv(covariances[n])
+        information += inverse
+        weighted += weights[n] * inverse
+        pull += weights[n] * (inverse @ aligned_t)
+    u, _, vt = np.linalg.svd(mean_r)
+    flip = np.eye(3)
+    flip[2, 2] = np.sign(np.linalg.det(u @ vt))
+    return u @ flip @ vt, np.linalg.solve(weighted, pull), np.linalg.inv(information)
+
+
+@numba.njit(cache=True, nogil=True)
+def _consensus(rotations, translations, covariances, weights, groups, agree, symmetry_r,
+               symmetry_t, min_trace, chi2):
+    count = rotations.shape[0]
+    best_support, seed = -1.0, 0
+    for i in range(count):
+        support, k = 0.0, 0
+        while k < count:                    # each view adds its best agreeing weight
+            end, best = k, 0.0
+            while end < count and groups[end] == groups[k]:
+                if agree[i, end] and (groups[end] != groups[i] or end == i):
+                    best = max(best, weights[end])
+                end += 1
+            support += best
+            k = end
+        if support >= best_support:         # ties: the newest view
+            best_support, seed = support, i
+    candidates = agree[seed].copy()
+    for n in range(count):
+        if groups[n] == groups[seed] and n != seed:
+            candidates[n] = False
+    chosen = _one_a_view(candidates, weights, groups)
+    rotation, translation, covariance = _fuse(rotations, translations, covariances, weights,
+                                              chosen, rotations[seed], symmetry_r, symmetry_t)
+    agreeing = np.zeros(count, dtype=np.bool_)
+    for n in range(count):
+        s, trace = _closest_copy(rotation, rotations[n], symmetry_r)
+        if trace >= min_trace:
+            _, aligned_t = _aligned(rotations[n], translations[n], symmetry_r, symmetry_t, s)
+            agreeing[n] = _mahalanobis2(aligned_t - translation,
+                                        covariances[n] + covariance) < chi2
+    if agreeing.any():
+        chosen = _one_a_view(agreeing, weights, groups)
+        rotation, translation, covariance = _fuse(rotations, translations, covariances,
+                                                  weights, chosen, rotation, symmetry_r,
+                                                  symmetry_t)
+    return rotation, translation, covariance, chosen
+
+
+def fuse_views(rotations: np.ndarray, translations: np.ndarray, covariances: np.ndarray,
+               weights: np.ndarray, groups: np.ndarray, agree: np.ndarray,
+               symmetries: np.ndarray, gate_deg: float, tolerance_m: float) -> FusedPose:
     """
     Fuse an object's views' candidate poses into one pose (see the module docstring).
 
-    ``views``: the candidates, those of one view consecutive and sharing its ``view``;
-    ``agree``: (N, N) their ``agreement`` with each other (kept by the caller, which adds
-    and drops views); ``tolerance_m``: the translation error the confidence is the chance
-    of staying within (the object's ADD(-S) threshold, a tenth of its diameter).
+    The poses are stacked as the module docstring says; ``agree``: (N, N) their
+    ``agreement`` with each other (kept by the caller, which adds and drops views);
+    ``tolerance_m``: the translation error the confidence is the chance of staying within
+    (the object's ADD(-S) threshold, a tenth of its diameter).
     """
-    rotations, translations, covariances, weights = _stack(views, symmetries)
-    groups = np.array([v.view for v in views])
-    agree = agree & ((groups[:, None] != groups[None]) | np.eye(len(views), dtype=bool))
-    starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
-    support = np.maximum.reduceat(agree * weights[None], starts, axis=1).sum(1)
-    seed = int(np.flatnonzero(support == support.max())[-1])     # ties: the newest view
-    inliers = _one_a_view(agree[seed], weights, groups)
-    rotation, translation, covariance = _fuse(
-        rotations[inliers], translations[inliers], covariances[inliers], weights[inliers],
-        rotations[seed], symmetries)
-    copies_r, copies_t = _symmetric_copies(rotations, translations, symmetries)
-    best, angle = _closest(rotation, copies_r)
-    delta = copies_t[np.arange(len(views)), best] - translation
-    agreeing = (angle < options.map_gate_deg) & \
-        (_mahalanobis2(delta, covariances + covariance) < CHI2_3DOF_99)
-    if agreeing.any():
-        inliers = _one_a_view(agreeing, weights, groups)
-        rotation, translation, covariance = _fuse(
-            rotations[inliers], translations[inliers], covariances[inliers],
-            weights[inliers], rotation, symmetries)
+    rotation, translation, covariance, inliers = _consensus(
+        rotations, translations, covariances, weights, groups, agree,
+        np.ascontiguousarray(symmetries[:, :3, :3]), np.ascontiguousarray(symmetries[:, :3, 3]),
+        _min_trace(gate_deg), CHI2_3DOF_99)
     worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(covariance)[-1]), 1e-12))
     within = math.erf(tolerance_m / (math.sqrt(2.0) * worst_sigma))
     return FusedPose(rotation, translation, covariance, inliers,

@@ -37,7 +37,6 @@ the camera's error does not move the pose across the ray.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -99,8 +98,9 @@ class _Entry:
     """
     An object's kept views (each a list of candidate ViewedPoses) and their fused pose.
 
-    ``agree`` is the (N, N) ``consensus.agreement`` of the N kept candidates, view by view,
-    kept up to date as views come and go, so that a new view costs N comparisons, not N^2.
+    The candidates are also kept stacked (``consensus``'s layout), with ``agree``, their
+    (N, N) ``consensus.agreement``, up to date as views come and go: a new view costs N
+    comparisons, not N^2.
     """
 
     def __init__(self, model: ObjectModel, options: PipelineOptions) -> None:
@@ -108,6 +108,7 @@ class _Entry:
         self.symmetries = model.symmetry_transforms
         self.tolerance = TOLERANCE_DIAMETERS * model.diameter
         self.views: list[list[ViewedPose]] = []
+        self.stacked = _stack([])
         self.agree = np.zeros((0, 0), dtype=bool)
         self.fused: FusedPose | None = None
         self.seen_ns = 0
@@ -129,36 +130,43 @@ class _Entry:
         agrees with the fused pose adds nothing but the time it was seen; one that
         disagrees replaces the newest (a moved object shows so to a still camera).
         """
+        new = _stack(view)
         if self.views and _ray_angle_deg(self.views[-1][0], view[0]) < \
                 self.options.map_keyframe_deg:
-            if self._agrees_with_fused(view[0]):
+            fused = self.fused
+            if self._agreement(_first(new), (fused.rotation[None], fused.translation[None],
+                                              fused.covariance[None]))[0, 0]:
                 self.seen_ns = max(self.seen_ns, view[0].stamp_ns)
                 return
             self._drop(len(self.views) - 1)
         if len(self.views) == self.options.map_window:
             self._drop(0)
-        old = self.candidates
-        across = agreement(view, old, self.symmetries, self.options)
-        within = agreement(view, view, self.symmetries, self.options)
-        self.agree = np.block([[self.agree, across.T], [across, within]])
+        old = len(self.agree)
+        agree = np.empty((old + len(view), old + len(view)), dtype=bool)
+        agree[:old, :old] = self.agree
+        agree[old:, :old] = self._agreement(new, self.stacked)
+        agree[:old, old:] = agree[old:, :old].T
+        agree[old:, old:] = self._agreement(new, new)
+        self.agree = agree
+        self.stacked = tuple(np.concatenate([old, part]) for old, part in zip(self.stacked, new))
         self.views.append(view)
-        self.fused = fuse_views(self.candidates, self.agree, self.symmetries, self.options,
-                                self.tolerance)
+        self._refit()
         self._restart_if_moved()
         self.seen_ns = max([self.seen_ns] + [c.stamp_ns for c in self.inlier_candidates()])
 
-    def _agrees_with_fused(self, candidate):
-        fused = self.fused
-        as_view = dataclasses.replace(candidate, rotation=fused.rotation,
-                                      translation=fused.translation,
-                                      covariance=fused.covariance)
-        return bool(agreement([candidate], [as_view], self.symmetries, self.options)[0, 0])
+    def _agreement(self, a, b):
+        return agreement(*a[:3], *b[:3], self.symmetries, self.options.map_gate_deg)
+
+    def _refit(self):
+        self.fused = fuse_views(*self.stacked, self.agree, self.symmetries,
+                                self.options.map_gate_deg, self.tolerance)
 
     def _drop(self, index):
         start = sum(len(v) for v in self.views[:index])
         keep = np.ones(len(self.agree), dtype=bool)
         keep[start:start + len(self.views[index])] = False
         self.agree = self.agree[keep][:, keep]
+        self.stacked = tuple(part[keep] for part in self.stacked)
         del self.views[index]
 
     def _restart_if_moved(self):
@@ -168,13 +176,25 @@ class _Entry:
         if len(recent) < count or len(self.views) == count:
             return
         seen_recently = {c.view for c in self.inlier_candidates()} & {v[0].view for v in recent}
-        chosen = [v[0] for v in recent]
-        if not seen_recently and agreement(chosen, chosen, self.symmetries,
-                                           self.options).all():
+        chosen = _stack([v[0] for v in recent])
+        if not seen_recently and self._agreement(chosen, chosen).all():
             while len(self.views) > count:
                 self._drop(0)
-            self.fused = fuse_views(self.candidates, self.agree, self.symmetries,
-                                    self.options, self.tolerance)
+            self._refit()
+
+
+def _stack(candidates):
+    """(rotations, translations, covariances, weights, view groups) of ViewedPoses."""
+    return (np.array([c.rotation for c in candidates], dtype=float).reshape(-1, 3, 3),
+            np.array([c.translation for c in candidates], dtype=float).reshape(-1, 3),
+            np.array([c.covariance for c in candidates], dtype=float).reshape(-1, 3, 3),
+            np.array([max(c.confidence, 1e-3) for c in candidates], dtype=float),
+            np.array([c.view for c in candidates], dtype=np.int64))
+
+
+def _first(stacked):
+    """The first pose of stacked candidates, stacked."""
+    return tuple(part[:1] for part in stacked)
 
 
 def _ray_angle_deg(a: ViewedPose, b: ViewedPose) -> float:

@@ -31,7 +31,9 @@ says so.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
+import numba
 import numpy as np
 
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -70,6 +72,15 @@ class ViewedPose:
     translation_camera: np.ndarray
 
 
+@numba.njit(cache=True, nogil=True)
+def _ray_covariance(translation_camera, focal_px, depth_sigma, across_sigma_px):
+    distance = math.sqrt(translation_camera @ translation_camera)
+    ray = translation_camera / max(distance, 1e-9)
+    along = (depth_sigma * distance) ** 2
+    across = (across_sigma_px * distance / focal_px) ** 2
+    return across * np.eye(3) + (along - across) * np.outer(ray, ray)
+
+
 def ray_covariance(translation_camera: np.ndarray, focal_px: float,
                    options: PipelineOptions) -> np.ndarray:
     """
@@ -79,11 +90,8 @@ def ray_covariance(translation_camera: np.ndarray, focal_px: float,
     times the distance; across it ``map_across_sigma_px`` pixels at that distance
     (``focal_px``: the camera's mean focal length in pixels).
     """
-    distance = float(np.linalg.norm(translation_camera))
-    ray = translation_camera / max(distance, 1e-9)
-    along = (options.map_depth_sigma * distance) ** 2
-    across = (options.map_across_sigma_px * distance / focal_px) ** 2
-    return across * np.eye(3) + (along - across) * np.outer(ray, ray)
+    return _ray_covariance(np.asarray(translation_camera, dtype=float), float(focal_px),
+                           options.map_depth_sigma, options.map_across_sigma_px)
 
 
 def camera_covariance(distance_m: float, options: PipelineOptions) -> float:
@@ -94,7 +102,7 @@ def camera_covariance(distance_m: float, options: PipelineOptions) -> float:
     (``map_camera_sigma_deg``, times the point's distance from the camera).
     """
     return (options.map_camera_sigma_mm * MM) ** 2 + \
-        (np.deg2rad(options.map_camera_sigma_deg) * distance_m) ** 2
+        (math.radians(options.map_camera_sigma_deg) * distance_m) ** 2
 
 
 def view_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera: np.ndarray,
@@ -109,9 +117,12 @@ def view_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera:
     pose.
     """
     rotation_wc, position = world_from_camera[:3, :3], world_from_camera[:3, 3]
-    distance = float(np.linalg.norm(translation_camera))
+    translation_camera = np.asarray(translation_camera, dtype=float)
     covariance = rotation_wc @ ray_covariance(translation_camera, focal_px, options) \
-        @ rotation_wc.T + camera_covariance(distance, options) * np.eye(3)
+        @ rotation_wc.T
+    variance = camera_covariance(math.sqrt(translation_camera @ translation_camera), options)
+    for axis in range(3):
+        covariance[axis, axis] += variance
     return ViewedPose(object_name, view, stamp_ns, rotation_wc @ rotation_camera,
                       rotation_wc @ translation_camera + position, covariance,
-                      position.copy(), float(confidence), np.array(translation_camera))
+                      position, float(confidence), translation_camera)
