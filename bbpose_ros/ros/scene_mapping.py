@@ -45,9 +45,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 import threading
+import time
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from std_msgs.msg import Header
@@ -77,6 +79,10 @@ except ImportError:         # the wheel venv: TransformBuffer stands in
 TF_LISTENER_QOS = QoSProfile(depth=100)
 TF_STATIC_QOS = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 MAP_FRAME_PREFIX = 'map/'
+# TF may arrive a little after the image it places (another topic, another sender): a
+# lookup waits this long for it, as tf2_ros's lookup_transform with a timeout does.
+TF_WAIT_S = 0.1
+TF_POLL_S = 0.005
 
 
 class SceneMapping:
@@ -189,14 +195,23 @@ class SceneMapping:
         if not frame_id:
             raise InputError('the image has no frame_id')
         if self._tf2 is not None:
-            stamped = self._tf2[0].lookup_transform(self.fixed_frame, frame_id, header.stamp)
+            stamped = self._tf2[0].lookup_transform(self.fixed_frame, frame_id, header.stamp,
+                                                    Duration(seconds=TF_WAIT_S))
             t, q = stamped.transform.translation, stamped.transform.rotation
             return rigid_matrix(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])),
                                 [t.x, t.y, t.z])
-        if self._buffer is None:
-            raise TransformUnavailable('not listening to TF (inactive)')
-        with self._lock:
-            return self._buffer.lookup(self.fixed_frame, frame_id, stamp_to_ns(header.stamp))
+        deadline = time.monotonic() + TF_WAIT_S
+        while True:
+            if self._buffer is None:
+                raise TransformUnavailable('not listening to TF (inactive)')
+            try:
+                with self._lock:
+                    return self._buffer.lookup(self.fixed_frame, frame_id,
+                                               stamp_to_ns(header.stamp))
+            except TransformUnavailable:
+                if time.monotonic() > deadline:
+                    raise
+            time.sleep(TF_POLL_S)
 
     def _publish(self, header, objects, now_ns, pipeline):
         """Publish the map: poses always, detections, TF and markers while subscribed."""
