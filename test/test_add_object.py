@@ -32,7 +32,6 @@ from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.mesh_check import check_mesh
 from bbpose_ros.core.data.models import load_bop_models
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.weights import load_network, WEIGHTS_DIR
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
@@ -41,6 +40,7 @@ from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
                                                         INPLANE_RANGE_DEG, NETWORKS,
                                                         node_parameters, write_params_file)
 from bbpose_ros.core.training.object_rows import RowTraining, with_objects
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.conversions import rgb_to_image
 from bbpose_ros.ros.params import check_value
 

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.static_stretches import camera_poses, noisy_pose, static_stretches
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -29,6 +28,7 @@ from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.object_map import ObjectMap
+from bbpose_ros.core.util.errors import InputError
 
 CAMERA = CameraIntrinsics(572.4, 573.6, 325.3, 242.0, 640, 480)
 OBJECT_IN_WORLD = rigid_matrix(Rotation.from_euler('xyz', [10, 20, 30], degrees=True)

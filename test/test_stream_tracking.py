@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import save_weights
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
@@ -38,6 +37,7 @@ from bbpose_ros.core.pipeline.tracking import PoseTracker, Track
 from bbpose_ros.core.refine import kernel_launch
 from bbpose_ros.core.refine.refiner import compile_kernels
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.diagnostics import stage_rates
 
 pytestmark = pytest.mark.slow   # real frames refined in two threads

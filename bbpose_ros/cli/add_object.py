@@ -26,7 +26,7 @@ import os
 from pathlib import Path
 
 from bbpose_ros.cli.common import add_dataset_argument, add_mesh_arguments
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 NETWORK_FILES = {'detector': 'detector.pt', 'qnet': 'qnet.pt', 'dense': 'dense.pt'}
 

@@ -27,7 +27,6 @@ from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
                                    in_blocks)
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
 from bbpose_ros.core.eval.evaluation import score_frames
@@ -36,6 +35,7 @@ from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 if TYPE_CHECKING:

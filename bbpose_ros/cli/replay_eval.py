@@ -46,7 +46,6 @@ from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
 from bbpose_ros.core.eval.paired import write_instances
@@ -55,6 +54,7 @@ from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
 from bbpose_ros.core.eval.video import check_video_path, write_video
 from bbpose_ros.core.pipeline import overlays
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 from bbpose_ros.ros.params import resolve_dataset_dir
 from bbpose_ros.ros.params_file import read_params_file

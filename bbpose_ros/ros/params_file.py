@@ -28,7 +28,7 @@ from typing import Any
 from ament_index_python.packages import get_package_share_directory
 import yaml
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.params import NODE_NAME, PARAMETERS
 
 

@@ -56,7 +56,6 @@ from bbpose_ros.core.adaptation.selection import (select_labels, SelectionSettin
 from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, HeadTraining)
 from bbpose_ros.core.adaptation.teacher import Teacher, TeacherPose
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.int8_graphs import int8_graph_path
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
@@ -69,6 +68,7 @@ from bbpose_ros.core.training.quantization import (calibration_crops, calibratio
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.staged_folder import StagedFolder
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 STUDENTS = ('detector', 'qnet')

@@ -32,15 +32,15 @@ import numpy as np
 import numpy.typing as npt
 from tqdm import tqdm
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import metrics
 from bbpose_ros.core.eval.tables import format_object_table
 from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rotations import euler_error_deg, perturb_pose
-from bbpose_ros.core.latency import StageTimer, timing_summary
+from bbpose_ros.core.pipeline.latency import StageTimer, timing_summary
 from bbpose_ros.core.pipeline.pose_pipeline import dense_masks, PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, FrameResult, PoseEstimate
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame, GroundTruthInstance

@@ -32,7 +32,7 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 if TYPE_CHECKING:       # the scoring (and the pipeline it imports) only for the type

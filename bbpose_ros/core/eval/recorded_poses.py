@@ -33,7 +33,7 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.eval.evaluation import InstanceScore, pose_box, score_frame
 from bbpose_ros.core.eval.evaluation import summarize_objects
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.latency import timing_summary
+from bbpose_ros.core.pipeline.latency import timing_summary
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
 RecordedPose = tuple[str, np.ndarray, np.ndarray]   # object name, rotation (3, 3), t (3,) m

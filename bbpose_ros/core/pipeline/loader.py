@@ -31,7 +31,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import use_inference_threads
 from bbpose_ros.core.inference.int8_graphs import choose_int8_graph
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -46,6 +45,7 @@ from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -63,15 +63,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.latency import StageTimer
 from bbpose_ros.core.pipeline.background_detection import BackgroundDetection
+from bbpose_ros.core.pipeline.latency import StageTimer
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import FrameResult, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

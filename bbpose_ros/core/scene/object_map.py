@@ -42,7 +42,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rigid import invert_rigid, is_rigid
@@ -51,6 +50,7 @@ from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.consensus import agreement, fuse_views, FusedPose
 from bbpose_ros.core.scene.views import camera_covariance, ray_covariance, view_in_world
 from bbpose_ros.core.scene.views import ViewedPose
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -50,7 +50,6 @@ from bbpose_ros.core.data.fingerprints import sha256_of_arrays
 from bbpose_ros.core.data.mesh_check import CheckedMesh, MM_TO_M, write_bop_model
 from bbpose_ros.core.data.models import (load_bop_models, load_models_info, NAMES_FILE,
                                          object_names)
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.int8_graphs import file_sha256, int8_graph_path
 from bbpose_ros.core.inference.weights import load_network, save_weights
 from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
@@ -67,6 +66,7 @@ from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
 from bbpose_ros.core.training.staged_folder import StagedFolder
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 NETWORKS = ('detector', 'qnet', 'dense')
