@@ -28,10 +28,11 @@ from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
-from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.fusion import frame_camera_poses, FUSE_MODES
+from bbpose_ros.core.eval.instance_scores import InstanceScore, make_report
 from bbpose_ros.core.eval.paired import write_instances
+from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles

@@ -47,11 +47,12 @@ from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
 from bbpose_ros.core.eval import plots
-from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
+from bbpose_ros.core.eval.instance_scores import InstanceScore
 from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.eval.recorded_poses import ground_truth_instances
 from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
+from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.eval.video import check_video_path, write_video
 from bbpose_ros.core.pipeline import overlays
 from bbpose_ros.core.util.errors import InputError

@@ -17,7 +17,7 @@ Scoring a running node's recorded poses against a bag's ground truth (``replay-e
 
 The node publishes poses, not its detector's boxes: ground-truth and estimated poses are
 matched through the projection of the object's mesh at each pose, then scored as ``bbpose
-eval`` scores (``evaluation.score_frame``). A frame is any ``GroundTruthFrame`` (a
+eval`` scores (``instance_scores.score_frame``). A frame is any ``GroundTruthFrame`` (a
 ``bags.reader.BagFrame``); a ``Recording`` holds what the node answered, by image stamp
 (``cli.graph.replay.Recorder`` fills it).
 """
@@ -30,8 +30,8 @@ import numpy as np
 
 from bbpose_ros.core.data.bop import GroundTruthInstance
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.eval.evaluation import InstanceScore, pose_box, score_frame
-from bbpose_ros.core.eval.evaluation import summarize_objects
+from bbpose_ros.core.eval.instance_scores import InstanceScore, score_frame, summarize_objects
+from bbpose_ros.core.eval.matching import pose_box
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.latency import timing_summary
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate

@@ -31,7 +31,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 
 from bbpose_ros.core.eval.detection import score_detections
-from bbpose_ros.core.eval.evaluation import score_instance, summarize_objects
+from bbpose_ros.core.eval.instance_scores import score_instance, summarize_objects
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.inference.backends import TorchRunner
