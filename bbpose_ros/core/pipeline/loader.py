@@ -64,6 +64,21 @@ class WeightFiles:
 
 
 @dataclass(frozen=True)
+class PipelineFiles:
+    """
+    What a tool made for the node to load: its objects, their dataset folder, weight files.
+
+    ``bbpose add-object`` and ``bbpose adapt`` return one; ``ros/params_file.py`` turns it
+    into the node's parameters. ``dataset_dir`` and the weight files are None where the tool
+    leaves the node's value as it was.
+    """
+
+    objects: tuple[str, ...]
+    dataset_dir: Path | None = None
+    weights: WeightFiles = WeightFiles()
+
+
+@dataclass(frozen=True)
 class StagesGiven:
     """
     Which stages the caller replaces by the ground truth, passing their outputs to ``estimate``.
