@@ -30,10 +30,10 @@ from bbpose_ros.core.adaptation.selection import select_labels, SelectionSetting
 from bbpose_ros.core.adaptation.students import adapt_detector, HeadTraining, ignore_mask
 from bbpose_ros.core.adaptation.teacher import TeacherPose
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.label_precision import label_precision
 from bbpose_ros.core.inference.weights import DEFAULT_DETECTOR_WEIGHTS, load_network
 from bbpose_ros.core.training.cache import TrainingCache
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.params import read_config
 from bbpose_ros.ros.params_file import read_params_file
 

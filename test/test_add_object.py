@@ -27,22 +27,23 @@ import trimesh
 import yaml
 
 from bbpose_ros.bags import topics
-from bbpose_ros.cli.add_object import base_weight_files
+from bbpose_ros.cli.add_object import base_weight_files, write_params
 from bbpose_ros.cli.graph.replay import NodeProcess
 from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.mesh_check import check_mesh
 from bbpose_ros.core.data.models import load_bop_models
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.weights import load_network, WEIGHTS_DIR
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
                                                         AddObjectSettings, axis_symmetries,
                                                         INPLANE_RANGE_DEG, NETWORKS,
-                                                        node_parameters, write_params_file)
+                                                        output_files)
 from bbpose_ros.core.training.object_rows import RowTraining, with_objects
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.conversions import rgb_to_image
 from bbpose_ros.ros.params import check_value
+from bbpose_ros.ros.params_file import pipeline_values
 
 NAME = 'redbox'
 # Small enough for CI, large enough for the detector to find the box in its own scenes.
@@ -65,8 +66,11 @@ def red_box(tmp_path_factory):
 @pytest.fixture(scope='module')
 def added(lmo_root, red_box, tmp_path_factory):
     out = tmp_path_factory.mktemp('added')
-    AddObject(AddedObject(NAME, red_box, np.zeros((0, 4, 4))), base_weight_files(WEIGHTS_DIR),
-              lmo_root, out, TINY, progress=False, log=lambda line: None).run()
+    task = AddObject(AddedObject(NAME, red_box, np.zeros((0, 4, 4))),
+                     base_weight_files(WEIGHTS_DIR), lmo_root, out, TINY, progress=False,
+                     log=lambda line: None)
+    task.run()
+    write_params(out, task.pipeline_files())        # as bbpose add-object does
     return out
 
 
@@ -127,11 +131,14 @@ def test_the_params_file_sets_node_parameters_as_the_node_declares_them(tmp_path
     (tmp_path / 'dataset' / 'models').mkdir(parents=True)
     for kind in NETWORKS:
         (tmp_path / f'{kind}.pt').touch()
-    parameters = node_parameters(tmp_path, ['ape', NAME])
+    files = output_files(tmp_path, ['ape', NAME])
+    parameters = pipeline_values(files)
+    out = tmp_path.resolve()
+    assert parameters == {'objects': ['ape', NAME], 'dataset_dir': str(out / 'dataset'),
+                          **{f'{kind}_weights': str(out / f'{kind}.pt') for kind in NETWORKS}}
     for name, value in parameters.items():
         check_value(name, value)      # ros/params.py's name, type and check
-    write_params_file(tmp_path / 'params.yaml', parameters)
-    written = yaml.safe_load((tmp_path / 'params.yaml').read_text())
+    written = yaml.safe_load(write_params(tmp_path, files).read_text())
     assert written == {'/**': {'ros__parameters': parameters}}
 
 

@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
+from bbpose_ros.core.util.errors import InputError
 
 
 @pytest.fixture()

@@ -20,7 +20,7 @@ import sys
 import pytest
 
 from bbpose_ros.bags import typestore
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 DETECTIONS = 'vision_msgs/msg/Detection3DArray'
 

@@ -30,8 +30,8 @@ from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.bags.typestore import TYPESTORE
 from bbpose_ros.bags.writer import write_bag, write_bop_bag
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
+from bbpose_ros.core.util.errors import InputError
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

@@ -22,7 +22,7 @@ import pytest
 
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.data.models import load_bop_models, load_mesh
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def test_reads_frames_ground_truth_and_intrinsics(lmo, lmo_frames):

@@ -29,7 +29,6 @@ import pytest
 import torch
 
 from bbpose_ros.cli.main import main
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.weights import load_network
 from bbpose_ros.core.synth import SyntheticScenes
@@ -39,6 +38,7 @@ from bbpose_ros.core.training.cache import build_cache, TrainingCache, write_sce
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
 from bbpose_ros.core.training.device import training_device
 from bbpose_ros.core.training.loop import RunLog
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL and trains
 

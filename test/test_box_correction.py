@@ -17,7 +17,6 @@
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import score_detections
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -28,6 +27,7 @@ from bbpose_ros.core.pipeline.correspondences import DenseMaps
 from bbpose_ros.core.pipeline.loader import load_correspondences, load_pipeline
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.util.errors import InputError
 
 FRAMES = 100    # the dev frames
 

@@ -26,11 +26,11 @@ import cv2
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, CameraModel, Rectifier
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.util.errors import InputError
 
 # Distortions of the kind a calibration gives, several to tens of pixels at the corners.
 DISTORTIONS = {

@@ -23,7 +23,7 @@ import sys
 import pytest
 
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.eval.evaluation import POSE_KEYS
+from bbpose_ros.core.eval.instance_scores import POSE_KEYS
 from bbpose_ros.core.eval.paired import instances_path
 
 pytestmark = pytest.mark.slow   # runs the bbpose CLI as a process

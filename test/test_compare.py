@@ -19,13 +19,13 @@ import json
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.paired import compare, format_comparison, instances_path
 from bbpose_ros.core.eval.paired import (compare_objects, format_objects, read_instances,
                                          read_runs)
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
+from bbpose_ros.core.util.errors import InputError
 
 FRAMES = 4
 

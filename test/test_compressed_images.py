@@ -43,7 +43,7 @@ from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.compressed_image import codec_of, compressed_size
 from bbpose_ros.core.data.compressed_image import decode_compressed, encode_compressed
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import counts_from_status
 

@@ -16,8 +16,9 @@
 
 import yaml
 
-from bbpose_ros.cli.config_file import CONFIG_FILE, config_text, main, yaml_value
+from bbpose_ros.cli.config_file import CONFIG_FILE, config_text, main
 from bbpose_ros.ros.params import PARAMETERS
+from bbpose_ros.ros.params_file import yaml_value
 
 
 def test_the_parameters_file_is_what_the_declarations_make():
@@ -36,6 +37,8 @@ def test_values_the_yaml_would_misread_are_quoted():
     for value in ('', '~/', 'null', 'true', '1.5', "it's", 'a: b', 'dense+qnet'):
         assert yaml.safe_load(yaml_value(value)) == value
     assert yaml_value(1.0) == '1.0' and yaml_value(1) == '1' and yaml_value(False) == 'false'
+    for value in (1e-05, -2.5e-10, float('inf'), [0.5, 1e20]):
+        assert yaml.safe_load(yaml_value(value)) == value
 
 
 def test_check_tells_a_file_that_differs(tmp_path):

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -32,6 +31,7 @@ from bbpose_ros.core.synth.crop_scenes import CropScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, is_crop_cache
 from bbpose_ros.core.training.qnet_training import QNetBatches, QNetTrainSettings
 from bbpose_ros.core.training.real_validation import RealCrops
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
 

@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.dense_grid import cell_centres_uv, model_box
@@ -42,6 +41,7 @@ from bbpose_ros.core.training.dense_training import (canonical_symmetry, dense_l
                                                      DenseBatches, DenseTrainSettings,
                                                      symmetric_coordinates)
 from bbpose_ros.core.training.runs import train_dense, TrainingRun
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL and trains
 

@@ -21,10 +21,10 @@ import shutil
 import pytest
 
 from bbpose_ros.cli.main import main
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.doc_tables import REPORT_COMMANDS, TABLES
 from bbpose_ros.core.eval.report_tables import (
     caption, check_docs, Column, fill_markers, report_loader, RunsTable, write_docs)
+from bbpose_ros.core.util.errors import InputError
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

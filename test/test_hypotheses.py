@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.hypotheses import box_misfit, farthest_points, HypothesisSelector
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
+from bbpose_ros.core.util.errors import InputError
 
 SHIPPED = PipelineOptions()
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bbpose_ros.core.data.image_encoding import decode_image
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 # Where each colour sits in the first 2x2 block of a ROS Bayer encoding.
 BAYER = {'bayer_rggb8': 'RGGB', 'bayer_bggr8': 'BGGR', 'bayer_gbrg8': 'GBRG',

@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.backends import inference_network, make_runner
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -28,6 +27,7 @@ from bbpose_ros.core.nets.qnet import QNet, QNetConfig
 from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
+from bbpose_ros.core.util.errors import InputError
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 RNG = np.random.default_rng(5)

@@ -19,7 +19,6 @@ import shutil
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_iou
 from bbpose_ros.core.geometry.rotations import rotation_error_deg
 from bbpose_ros.core.inference import int8_graphs
@@ -32,6 +31,7 @@ from bbpose_ros.core.pipeline.box_detector import BoxDetector
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 from bbpose_ros.core.training.quantization import calibration_images, quantize_network
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # quantises the networks and runs them on real frames (~20 s)
 

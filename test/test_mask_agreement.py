@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
@@ -28,6 +27,7 @@ from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.render.reference import render_silhouette
+from bbpose_ros.core.util.errors import InputError
 
 SIZE = 32          # the dense net's mask grid
 CONTEXT = 1.25     # square side over the box's longer side

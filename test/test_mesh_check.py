@@ -26,7 +26,7 @@ from bbpose_ros.core.data import mesh_check
 from bbpose_ros.core.data.mesh_check import check_mesh, cluster_vertices, edge_counts, \
     write_bop_model
 from bbpose_ros.core.data.models import load_bop_models, load_mesh
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 BOX_MM = (60.0, 40.0, 20.0)
 RED = (200, 30, 30)

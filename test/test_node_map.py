@@ -58,7 +58,7 @@ START_NS = 1_700_000_000 * 1_000_000_000
 
 @pytest.fixture(scope='module')
 def scene(lmo_frames, lmo_models):
-    """The first static scene of four frames or more, with its camera poses."""
+    """Return the first static scene of four frames or more, with its camera poses."""
     stretch = next(s for s in static_stretches(lmo_frames) if len(s) >= 4)[:4]
     return [dataclasses.replace(frame, world_from_camera=pose)
             for frame, pose in zip(stretch, camera_poses(stretch, lmo_models))]
@@ -104,8 +104,10 @@ def play(client, bag, log):
     """Play the bag frame by frame, each after the previous frame's map arrived."""
     player = BagPlayer(client.node, bag)
     inputs = (topics.TF_TOPIC, topics.IMAGE_TOPIC, topics.CAMERA_INFO_TOPIC)
-    assert client.spin_until(lambda: all(player.publishers[topic].get_subscription_count() > 0
-                                          for topic in inputs))
+
+    def matched():
+        return all(player.publishers[topic].get_subscription_count() > 0 for topic in inputs)
+    assert client.spin_until(matched)
     last = None
     for topic, _, raw in player.messages():
         if topic == topics.IMAGE_TOPIC:
@@ -167,8 +169,7 @@ def test_a_frame_tf_cannot_place_is_answered_and_counted(graph, bag):
     assert client.spin_until(counted), log.path
 
 
-def test_a_bad_transform_is_refused_and_clear_map_forgets_the_objects(graph, scene,
-                                                                       tmp_path):
+def test_a_bad_transform_is_refused_and_clear_map_forgets_the_objects(graph, scene, tmp_path):
     client, _, log = graph
     bag = tmp_path / 'again'
     write_bop_bag(scene, bag, start_stamp_ns=START_NS + 7200 * 10 ** 9, progress=False)

@@ -24,7 +24,7 @@ from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.data.models import bop_object_ids, LMO_OBJECTS, load_bop_models, \
     NAMES_FILE, object_names
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 LMO_IDS = (1, 5, 6, 8, 9, 10, 11, 12)
 

@@ -20,7 +20,6 @@ import cv2
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_pnp import DensePose
@@ -42,6 +41,7 @@ from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import (geodesic_directions, look_at_rotation,
                                                     ViewpointModel)
 from bbpose_ros.core.render.reference import render_silhouette
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # viewpoint models of every mesh, real frames refined: ~30 s
 

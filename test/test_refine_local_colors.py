@@ -17,12 +17,12 @@
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.refine.color_histograms import color_bins
 from bbpose_ros.core.refine.refiner import refine_poses
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # viewpoint models of every mesh, 20 real frames refined
 

@@ -30,12 +30,13 @@ from vision_msgs.msg import Detection3DArray
 
 from bbpose_ros.bags.writer import write_bop_bag
 from bbpose_ros.cli.replay_eval import per_frame_in_lockstep, unscored_poses
-from bbpose_ros.core.errors import InputError
-from bbpose_ros.core.eval.evaluation import evaluate, POSE_KEYS
+from bbpose_ros.core.eval.evaluation import evaluate
+from bbpose_ros.core.eval.instance_scores import POSE_KEYS
 from bbpose_ros.core.eval.paired import read_instances
 from bbpose_ros.core.eval.recorded_poses import Recording
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # runs bbpose replay-eval and bbpose_node as processes
 

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.eval import plots
-from bbpose_ros.core.eval.evaluation import score_frame, summarize_objects
+from bbpose_ros.core.eval.instance_scores import score_frame, summarize_objects
 from bbpose_ros.core.pipeline import overlays
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 

@@ -36,9 +36,9 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros import node as node_module
 from bbpose_ros.ros.detections import DetectionsBuilder, load_pose_spread, ObjectSpread

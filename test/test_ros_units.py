@@ -30,9 +30,9 @@ import yaml
 
 from bbpose_ros.bags.topics import DEFAULT_FRAME_ID
 from bbpose_ros.core.data.stamps import BACKWARDS, FUTURE, REPEATED, StampChecker
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.detections import DetectionsBuilder, instance_names, transforms
 from bbpose_ros.ros.diagnostics import counts_from_status, NodeStats, timings_from_status

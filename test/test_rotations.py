@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry import rotations as rot
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.util.errors import InputError
 
 MATRICES = Rotation.random(200, random_state=1).as_matrix()
 

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.static_stretches import camera_poses, noisy_pose, static_stretches
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -29,6 +28,7 @@ from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.object_map import ObjectMap
+from bbpose_ros.core.util.errors import InputError
 
 CAMERA = CameraIntrinsics(572.4, 573.6, 325.3, 242.0, 640, 480)
 OBJECT_IN_WORLD = rigid_matrix(Rotation.from_euler('xyz', [10, 20, 30], degrees=True)
@@ -49,7 +49,7 @@ def looking_at_origin(azimuth_deg, distance=0.9, elevation_deg=40.0):
 
 def seen_from(world_from_camera, object_in_world=OBJECT_IN_WORLD, depth_error=0.0,
               turn_deg=0.0, name='ape', score=0.9, model=None):
-    """The object's pose in a camera, moved along the ray by ``depth_error`` (a fraction)."""
+    """Return the object's pose in a camera, moved along its ray by ``depth_error`` (share)."""
     pose = invert_rigid(world_from_camera) @ object_in_world
     rotation = pose[:3, :3] @ Rotation.from_euler('z', turn_deg, degrees=True).as_matrix()
     translation = pose[:3, 3] * (1.0 + depth_error)

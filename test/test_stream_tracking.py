@@ -23,13 +23,12 @@ import numpy as np
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import save_weights
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
-from bbpose_ros.core.pipeline import tracking
+from bbpose_ros.core.pipeline import stream_schedule
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import Detection
@@ -38,6 +37,7 @@ from bbpose_ros.core.pipeline.tracking import PoseTracker, Track
 from bbpose_ros.core.refine import kernel_launch
 from bbpose_ros.core.refine.refiner import compile_kernels
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.diagnostics import stage_rates
 
 pytestmark = pytest.mark.slow   # real frames refined in two threads
@@ -211,7 +211,7 @@ def test_the_camera_period_decides_where_a_lost_track_is_detected(scene, lmo_mod
 
 def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models,
                                                               monkeypatch):
-    monkeypatch.setattr(tracking, 'IN_PLACE_RETRY_EVERY', 3)
+    monkeypatch.setattr(stream_schedule, 'IN_PLACE_RETRY_EVERY', 3)
     compile_kernels()       # the first frame's run time is the refinement's, not numba's
     frame, image, truths, _ = scene
     slow = GatedDetector(truths, delay_s=2.0)       # the in-place route: two seconds a frame
@@ -242,7 +242,7 @@ def test_the_in_place_route_detects_while_the_period_holds_it(scene, lmo_models,
         assert lost_and_found(5.0) == (3, 2)
         # Five seconds a frame, no more retries: the running mean of the period grows until
         # it holds the in-place route.
-        monkeypatch.setattr(tracking, 'IN_PLACE_RETRY_EVERY', 1000)
+        monkeypatch.setattr(stream_schedule, 'IN_PLACE_RETRY_EVERY', 1000)
         assert lost_and_found(10.0) == (4, 2)       # a mean of 1.8 s
         assert lost_and_found(15.0) == (5, 2)       # 2.44 s
         assert lost_and_found(20.0) == (5, 3)       # 2.95 s: above 1.25 x 2 s

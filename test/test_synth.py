@@ -19,7 +19,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -28,6 +27,7 @@ from bbpose_ros.core.render.reference import render_silhouette
 from bbpose_ros.core.synth import SynthConfig, SyntheticSample, SyntheticScenes
 from bbpose_ros.core.synth.placement import viewpoint_angles
 from bbpose_ros.core.synth.torch_dataset import SyntheticSceneDataset
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
 

@@ -24,8 +24,8 @@ from bbpose_ros.bags.reader import read_bag_frames
 from bbpose_ros.cli import synth
 from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth import SyntheticScenes
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
 

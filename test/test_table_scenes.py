@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_grid import model_box
@@ -36,6 +35,7 @@ from bbpose_ros.core.synth.table_crops import TableCrops
 from bbpose_ros.core.synth.table_layout import look_at, polygons_overlap
 from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
+from bbpose_ros.core.util.errors import InputError
 
 pytestmark = pytest.mark.slow   # renders with OpenGL
 

@@ -21,7 +21,6 @@ import pytest
 import torch
 
 from bbpose_ros.cli.main import main
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix
 from bbpose_ros.core.nets.crops import square_boxes
@@ -39,6 +38,7 @@ from bbpose_ros.core.training.runs import parameter_groups, train_detector, Trai
 from bbpose_ros.core.training.verifier_training import (candidate_targets, CandidateCrops,
                                                         verifier_step, verifier_validation,
                                                         VerifierBatches, VerifierTrainSettings)
+from bbpose_ros.core.util.errors import InputError
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 CAMERA = CameraIntrinsics(572.4114, 573.57043, 325.2611, 242.04899, 640, 480)

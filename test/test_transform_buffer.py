@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rigid import invert_rigid
 from bbpose_ros.core.scene.transform_buffer import TransformBuffer, TransformUnavailable
+from bbpose_ros.core.util.errors import InputError
 
 S = 1_000_000_000
 
@@ -32,7 +32,7 @@ def quat(axis, degrees):
 
 @pytest.fixture
 def arm():
-    """world -> base (static) -> tool (moving, turning about z) -> camera (static)."""
+    """Return a buffer of world -> base (static) -> tool (moving, turning) -> camera (static)."""
     buffer = TransformBuffer(cache_s=10.0)
     buffer.set_transform('world', 'base', 0, [1.0, 0.0, 0.0], quat('z', 90), static=True)
     for k in range(5):

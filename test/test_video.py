@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.video import write_video
+from bbpose_ros.core.util.errors import InputError
 
 
 def decode(path):

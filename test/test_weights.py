@@ -17,12 +17,12 @@
 import pytest
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.weights import (DEFAULT_DETECTOR_WEIGHTS, DEFAULT_QNET_WEIGHTS,
                                                load_network, save_weights)
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.efficientnet_lite import load_imagenet_trunks
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.util.errors import InputError
 
 OBJECTS = ('ape', 'can', 'cat', 'driller', 'duck', 'eggbox', 'glue', 'holepuncher')
 TRAINING = {'command': 'test', 'git_commit': 'abc', 'steps': 0}

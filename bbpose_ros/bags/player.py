@@ -28,7 +28,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rosbags.rosbag2 import Reader
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 PLAY_QOS = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 

@@ -33,9 +33,9 @@ from bbpose_ros.bags.typestore import TYPESTORE
 from bbpose_ros.core.data.compressed_image import decode_compressed
 from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass

@@ -27,7 +27,7 @@ import sys
 
 from rosbags.typesys import get_types_from_msg, get_typestore, Stores
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 

@@ -32,8 +32,8 @@ from bbpose_ros.bags.typestore import add_missing_types, TYPESTORE
 from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.data.compressed_image import DEFAULT_JPEG_QUALITY, encode_compressed
 from bbpose_ros.core.data.image_encoding import encode_rgb8
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}

@@ -29,6 +29,9 @@ import sys
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_blocks_argument, add_dataset_argument, in_blocks
 
+PARAMS_HEADER = ('# bbpose_node parameters written by bbpose adapt: the base parameters with the\n'
+                 '# weights adapted to the recording (config/bbpose.yaml documents each one).\n')
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``bbpose adapt``."""
@@ -79,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
                                                    DEFAULT_QNET_WEIGHTS)
     from bbpose_ros.core.pipeline.loader import WeightFiles
     from bbpose_ros.ros.params import read_config
-    from bbpose_ros.ros.params_file import package_config_file, read_params_file
+    from bbpose_ros.ros.params_file import (package_config_file, pipeline_values,
+                                            read_params_file, write_params_file)
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -102,8 +106,11 @@ def run(args: argparse.Namespace) -> int:
     models = load_bop_models(config.dataset_dir, list(config.objects))
     print(f'adapting {", ".join(models)} on {len(frames)} frames into {args.out}')
     command = shlex.join(['bbpose'] + sys.argv[1:])
-    report = Adaptation(frames, models, config.options, base, values, args.out, settings,
-                        command=command).run()
+    adaptation = Adaptation(frames, models, config.options, base, args.out, settings,
+                            command=command)
+    report = adaptation.run()
+    write_params_file(args.out / 'params.yaml',
+                      dict(values, **pipeline_values(adaptation.pipeline_files())), PARAMS_HEADER)
     labels = report['labels'][f'round{settings.rounds}']
     print('labels of the last round: ' + ', '.join(f'{name} {c["accepted"]}'
                                                    for name, c in labels.items()))

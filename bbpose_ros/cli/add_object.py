@@ -24,11 +24,17 @@ object's rows instead: the base of a leave-one-out measurement.
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bbpose_ros.cli.common import add_dataset_argument, add_mesh_arguments
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
+
+if TYPE_CHECKING:
+    from bbpose_ros.core.pipeline.loader import PipelineFiles
 
 NETWORK_FILES = {'detector': 'detector.pt', 'qnet': 'qnet.pt', 'dense': 'dense.pt'}
+PARAMS_HEADER = ('# bbpose_node parameters written by bbpose add-object; the others keep their\n'
+                 '# defaults (config/bbpose.yaml documents every parameter).\n')
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -90,6 +96,14 @@ def base_weight_files(folder: Path) -> dict[str, Path]:
     return files
 
 
+def write_params(out: Path, files: 'PipelineFiles') -> Path:
+    """Write ``out``/params.yaml, the node's parameters that load ``files``; return its path."""
+    from bbpose_ros.ros.params_file import pipeline_values, write_params_file
+    path = Path(out) / 'params.yaml'
+    write_params_file(path, pipeline_values(files), PARAMS_HEADER)
+    return path
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``bbpose add-object``; returns the exit status."""
     import json
@@ -126,12 +140,12 @@ def run(args: argparse.Namespace) -> int:
                      base_weight_files(args.base_weights), args.dataset, args.out, settings,
                      backgrounds, command=' '.join(sys.argv), keep_renders=args.keep_renders)
     report = task.run()
+    params = write_params(args.out, task.pipeline_files())
     print(f'\n{args.name} added in {report["seconds"]["total"] / 60:.1f} min '
           f'({os.cpu_count()} CPU cores, peak memory {report["peak_rss_mb"] / 1024:.1f} GB, '
           f'{report["disk_mb"]:.0f} MB in {args.out}); on held-out renders:')
     for kind, figures in report.get('held_out_renders', {}).items():
         print(f'  {kind:9s}' + json.dumps({k: round(v, 3) for k, v in figures.items()}))
-    params = args.out / 'params.yaml'
     print(f'preview: {args.out / "preview.png"}\nnode: .venv/bin/bbpose_node --ros-args '
           f'--params-file {params}\n  (with colcon: ros2 run bbpose_ros bbpose_node '
           f'--ros-args --params-file {params})')

@@ -40,12 +40,12 @@ from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_o
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.data.compressed_image import decode_compressed, DEFAULT_JPEG_QUALITY
 from bbpose_ros.core.data.compressed_image import encode_compressed
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.eval.recorded_poses import latencies_ms
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.node_pipeline import build_node_pipeline

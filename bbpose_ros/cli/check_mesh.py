@@ -25,7 +25,7 @@ from pathlib import Path
 
 from bbpose_ros.cli.common import add_mesh_arguments
 from bbpose_ros.core.data.mesh_check import check_mesh, write_bop_model
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

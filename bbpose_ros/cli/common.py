@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 Config = TypeVar('Config')
 Item = TypeVar('Item')

@@ -17,9 +17,9 @@
 import argparse
 from pathlib import Path
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.paired import (compare, compare_objects, format_comparison,
                                          format_objects, read_runs)
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 

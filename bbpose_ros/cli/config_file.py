@@ -25,21 +25,17 @@ test fails when the file and the declarations differ.
 import argparse
 from collections.abc import Sequence
 from pathlib import Path
-import re
 import sys
 import textwrap
-from typing import Any
-
-import yaml
 
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.util.files import atomic_output
 from bbpose_ros.ros.param_specs import ParameterSpec
 from bbpose_ros.ros.params import PARAMETERS
+from bbpose_ros.ros.params_file import INDENT, params_file_text, yaml_value
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / 'config' / 'bbpose.yaml'
 WIDTH = 92
-INDENT = '    '
 KEEP = '\u00a0'    # a space the comment is not wrapped at (within a range)
 
 HEADER = """\
@@ -77,25 +73,7 @@ HEADER = """\
 #        /diagnostics (diagnostic_msgs/DiagnosticArray, 1 Hz)
 # All outputs carry the image's header stamp and frame_id.
 
-/**:
-  ros__parameters:
 """
-
-
-def yaml_value(value: Any) -> str:
-    """Return ``value`` (bool, int, float, str or a list of them) as YAML reads it back."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, str):
-        if re.fullmatch(r'[A-Za-z_][A-Za-z0-9_.+-]*', value) and \
-                yaml.safe_load(value) == value:
-            return value
-        return "'" + value.replace("'", "''") + "'"
-    if isinstance(value, (list, tuple)):
-        return '[' + ', '.join(yaml_value(item) for item in value) + ']'
-    raise TypeError(f'no YAML form for {value!r}')
 
 
 def parameter_comment(name: str, spec: ParameterSpec) -> str:
@@ -115,9 +93,9 @@ def parameter_comment(name: str, spec: ParameterSpec) -> str:
 
 def config_text() -> str:
     """Return the text of config/bbpose.yaml as the declarations make it."""
-    blocks = [f'{parameter_comment(name, spec)}\n{INDENT}{name}: {yaml_value(spec.default)}\n'
-              for name, spec in PARAMETERS.items()]
-    return HEADER + '\n'.join(blocks)
+    return params_file_text({name: spec.default for name, spec in PARAMETERS.items()}, HEADER,
+                            {name: parameter_comment(name, spec)
+                             for name, spec in PARAMETERS.items()})
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -20,9 +20,9 @@ import shlex
 import subprocess
 import sys
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.doc_tables import REPORT_COMMANDS, TABLES
 from bbpose_ros.core.eval.report_tables import check_docs, write_docs
+from bbpose_ros.core.util.errors import InputError
 
 # The repository (or source tree) this package sits in.
 ROOT = Path(__file__).resolve().parents[2]

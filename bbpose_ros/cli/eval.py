@@ -27,15 +27,16 @@ from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
                                    in_blocks)
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
-from bbpose_ros.core.eval.evaluation import format_report, InstanceScore, make_report
 from bbpose_ros.core.eval.evaluation import score_frames
 from bbpose_ros.core.eval.fusion import frame_camera_poses, FUSE_MODES
+from bbpose_ros.core.eval.instance_scores import InstanceScore, make_report
 from bbpose_ros.core.eval.paired import write_instances
+from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
 from bbpose_ros.core.inference.options import SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 if TYPE_CHECKING:
@@ -85,14 +86,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--fuse', choices=FUSE_MODES, default='none',
                         help="score each frame's own poses (none), or the map of its scene: "
                              'built from the frames up to it (causal) or from the whole scene '
-                             "(final). Each BOP scene is one static scene; its scene_camera.json "
-                             'must hold the camera poses (cam_R_w2c, cam_t_w2c: bbpose '
-                             'static-scenes writes them). The map reads images and camera '
+                             '(final). Each BOP scene is one static scene; its '
+                             'scene_camera.json must hold the camera poses (cam_R_w2c, '
+                             'cam_t_w2c: bbpose static-scenes writes them). The map reads images and camera '
                              'poses, never the ground truth (default %(default)s)')
     parser.add_argument('--camera-noise', type=float_pair, default=None, metavar='MM,DEG',
                         help='with --fuse: add a TF-like error to each camera pose first (RMS '
-                             'MM millimetres, DEG degrees; seeded by --seed), the map\'s '
-                             'sensitivity to it; the map_camera_sigma_* settings say what the '
+                             'MM millimetres, DEG degrees; seeded by --seed): the sensitivity '
+                             'of the map to it; the map_camera_sigma_* settings say what the '
                              'map assumes (default: none)')
     add_objects_argument(parser)
     add_frames_argument(parser)

@@ -26,7 +26,7 @@ import importlib
 import sys
 
 from bbpose_ros import __version__
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 SUBCOMMANDS = ('make_bag', 'eval', 'synth', 'check_mesh', 'train', 'play', 'replay_eval',
                'bench', 'docs', 'compare', 'pose_spread', 'add_object', 'adapt', 'score_labels',

@@ -23,7 +23,7 @@ from bbpose_ros.bags.writer import STORAGE, write_bop_bag
 from bbpose_ros.cli.common import add_dataset_argument, add_frames_argument
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.data.compressed_image import DEFAULT_JPEG_QUALITY
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

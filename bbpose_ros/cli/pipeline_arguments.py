@@ -24,8 +24,8 @@ import argparse
 from collections.abc import Collection, Mapping
 from typing import Any
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions, SETTINGS
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_settings_arguments(parser: argparse.ArgumentParser, names: Collection[str],

@@ -23,7 +23,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from bbpose_ros.bags.player import BagPlayer
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 ACK_TIMEOUT_S = 5.0   # reliable messages still in flight when the bag ends
 

@@ -29,10 +29,10 @@ from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_dataset_argument
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.spread import pose_errors, spread_of
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 OUT = Path(__file__).resolve().parents[1] / 'weights' / 'pose_spread.json'

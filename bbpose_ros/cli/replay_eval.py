@@ -47,16 +47,16 @@ from bbpose_ros.bags.writer import write_bag
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS, NODE_NAME, NodeProcess, Recorder
 from bbpose_ros.cli.graph.replay import replay_bag, use_large_image_profile
 from bbpose_ros.core.data.models import load_bop_models, ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval import plots
-from bbpose_ros.core.eval.evaluation import format_report, InstanceScore
+from bbpose_ros.core.eval.instance_scores import InstanceScore, summarize_objects
 from bbpose_ros.core.eval.paired import write_instances
-from bbpose_ros.core.eval.evaluation import summarize_objects
 from bbpose_ros.core.eval.recorded_poses import ground_truth_instances, map_in_cameras
 from bbpose_ros.core.eval.recorded_poses import Recording, recording_report
 from bbpose_ros.core.eval.recorded_poses import score_recording
+from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.eval.video import check_video_path, write_video
 from bbpose_ros.core.pipeline import overlays
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 from bbpose_ros.ros.params import resolve_dataset_dir
 from bbpose_ros.ros.params_file import read_params_file
@@ -80,8 +80,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     'and timing_ms.end_to_end: image published -> pose received, '
                     'timing_ms.answer: image published -> MarkerArray received). With '
                     '--param fixed_frame:=world and a bag with camera poses on /tf (make-bag of '
-                    'bbpose static-scenes output), the node\'s map (~/map/detections) is scored '
-                    'too, in each frame\'s camera by the bag\'s /tf, the map cleared where a '
+                    "bbpose static-scenes output), the node's map (~/map/detections) is scored "
+                    "too, in each frame's camera by the bag's /tf, the map cleared where a "
                     'new static scene begins: R.map.json and its instance records.')
     parser.add_argument('--bag', type=Path, required=True, help='bag with ground truth')
     parser.add_argument('--json', type=Path, required=True, help='report to write')

@@ -24,7 +24,7 @@ import argparse
 from pathlib import Path
 
 from bbpose_ros.cli.common import add_dataset_argument
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -26,9 +26,9 @@ from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_dataset_argument, float_pair
 from bbpose_ros.core.data.bop import BopDataset, read_json
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.static_stretches import bop_camera_fields, camera_poses, noisy_pose
 from bbpose_ros.core.eval.static_stretches import static_stretches
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 
@@ -53,8 +53,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='most change of a distance between two objects within a static '
                              'scene, millimetres (default %(default)s)')
     parser.add_argument('--camera-noise', type=float_pair, default=None, metavar='MM,DEG',
-                        help="add a TF-like error to each camera pose: RMS position error MM "
-                             "millimetres, RMS rotation error DEG degrees (default: none)")
+                        help='add a TF-like error to each camera pose: RMS position error MM '
+                             'millimetres, RMS rotation error DEG degrees (default: none)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of --camera-noise (default %(default)s)')
     parser.set_defaults(func=run)

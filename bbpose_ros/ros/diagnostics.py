@@ -36,7 +36,7 @@ import time
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from bbpose_ros.core.latency import timing_summary
+from bbpose_ros.core.pipeline.latency import timing_summary
 
 # Frames dropped, by reason (values frames_<reason>), and problems that dropped no frame,
 # each logged as a warning (values warnings_<kind>).

@@ -43,9 +43,9 @@ from std_msgs.msg import Header
 
 from bbpose_ros.core.data.compressed_image import decode_compressed
 from bbpose_ros.core.data.stamps import BACKWARDS, REPEATED, stamp_to_ns, StampChecker
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry import camera_info
 from bbpose_ros.core.geometry.camera_info import CameraModel
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions
 from bbpose_ros.ros.diagnostics import incompatible_qos_text, InputWatch, NodeStats
 from bbpose_ros.ros.frame import Frame, stamp_text

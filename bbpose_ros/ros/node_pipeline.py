@@ -24,10 +24,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from bbpose_ros.core.data.models import load_bop_models
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.tracking import PoseTracker
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.conversions import MarkerArrayBuilder
 from bbpose_ros.ros.detections import DetectionsBuilder
 from bbpose_ros.ros.params import NodeConfig

@@ -30,7 +30,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 APPLIES = ('start', 'configure', 'pipeline', 'frame')
 

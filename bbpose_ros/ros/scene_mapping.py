@@ -59,12 +59,12 @@ from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rigid import rigid_matrix
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.object_map import MapObject, ObjectMap
 from bbpose_ros.core.scene.transform_buffer import TransformBuffer, TransformUnavailable
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions, detections
 from bbpose_ros.ros.node_pipeline import NodePipeline
 from bbpose_ros.ros.throttle import ProblemLog

@@ -38,7 +38,7 @@ from lifecycle_msgs.srv import ChangeState
 from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.intake import FrameIntake
 from bbpose_ros.ros.node_pipeline import NodePipeline, stop_background
 from bbpose_ros.ros.params import NodeConfig, parameter_values, read_config

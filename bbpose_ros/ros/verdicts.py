@@ -33,8 +33,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from bbpose_ros.core.data.models import bop_object_ids, names_source
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.options import PipelineOptions
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.params import check_value, checked_options, parameter_values, PARAMETERS
 from bbpose_ros.ros.rebuild import PipelineRebuilder
 from bbpose_ros.ros.throttle import ProblemLog

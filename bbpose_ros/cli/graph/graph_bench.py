@@ -48,9 +48,9 @@ from bbpose_ros.cli.graph.replay import DIAGNOSTICS_TIMEOUT_S, NodeProcess, Reco
 from bbpose_ros.cli.graph.replay import use_large_image_profile
 from bbpose_ros.core.data.bop import BopFrame
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.benchmark import sample_process
 from bbpose_ros.core.eval.recorded_poses import Recording
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.params import NODE_NAME
 
 WARMUP_FRAMES = 5          # answered one by one before the clock starts

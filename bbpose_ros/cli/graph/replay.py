@@ -46,8 +46,8 @@ from visualization_msgs.msg import MarkerArray
 from bbpose_ros.bags import topics
 from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.recorded_poses import Recording
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.diagnostics import counts_from_status, timings_from_status
 from bbpose_ros.ros.params import NODE_NAME
 from bbpose_ros.ros.params_file import package_config_file

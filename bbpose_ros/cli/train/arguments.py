@@ -30,12 +30,12 @@ from typing import Any, TYPE_CHECKING, TypeVar
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_objects_argument, float_pair,
                                    with_inplane_range)
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
 from bbpose_ros.core.nets.qnet import QNetConfig
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.training.device import DEVICES
 from bbpose_ros.core.training.settings import declared, QNetTrainSettings, TrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.training.runs import TrainingRun

@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bbpose_ros.cli.train.arguments import settings_from
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.settings import QNetTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     import torch

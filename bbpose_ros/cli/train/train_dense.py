@@ -20,8 +20,8 @@ from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_optio
                                             add_extra_cache_option, add_init_option,
                                             add_settings_options, settings_from, training_run)
 from bbpose_ros.cli.train.inputs import init_network
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.settings import DenseTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

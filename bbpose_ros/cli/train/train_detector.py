@@ -21,8 +21,8 @@ from bbpose_ros.cli.train.arguments import (add_backbone_option, add_budget_opti
                                             add_init_option, add_settings_options, int_tuple,
                                             settings_from, training_run)
 from bbpose_ros.cli.train.inputs import init_network, load_cache
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.settings import DetectorTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

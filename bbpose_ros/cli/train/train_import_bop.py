@@ -26,7 +26,7 @@ from bbpose_ros.cli.train.arguments import (add_common_options, add_crop_options
                                             add_input_size_option, check_input_size)
 from bbpose_ros.cli.train.inputs import cache_camera
 from bbpose_ros.core.data.bop import DEFAULT_DATASET
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

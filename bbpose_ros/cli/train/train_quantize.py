@@ -17,7 +17,7 @@
 import argparse
 from pathlib import Path
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

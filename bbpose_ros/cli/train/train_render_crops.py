@@ -21,7 +21,7 @@ from bbpose_ros.cli.train.arguments import (add_backgrounds_option, add_common_o
                                             add_crop_options, add_table_options,
                                             refuse_table_options, table_config)
 from bbpose_ros.cli.train.inputs import cache_camera, other_models, photos
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -20,8 +20,8 @@ from pathlib import Path
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
                                             add_extra_cache_option, add_settings_options,
                                             int_tuple, settings_from, training_run)
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.settings import VerifierTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 VERIFIER_CHANNELS = (12, 24, 48, 48)
 

@@ -32,9 +32,12 @@ first stage whose output is missing:
    ``bbpose synth`` writes one (``synth.export.BopSceneWriter``: images, cameras, poses,
    amodal boxes and the labels' confidences; ``source_frames.json`` names each image's
    frame in the recording), an auto-annotation other tools can train on.
-5. ``preview.png`` (accepted labels green, refused ones red with their verdict),
-   ``params.yaml`` (the base parameters with the adapted weight files) and ``report.json``
-   (labels per object and round, student figures, stage times).
+5. ``preview.png`` (accepted labels green, refused ones red with their verdict) and
+   ``report.json`` (labels per object and round, student figures, stage times).
+
+``Adaptation.pipeline_files`` tells what the node loads from the folder; ``bbpose adapt``
+writes ``params.yaml``, the base parameters with the adapted weight files
+(``ros/params_file.py``).
 """
 
 from collections.abc import Callable, Mapping, Sequence
@@ -47,7 +50,6 @@ from typing import Any
 import cv2
 import numpy as np
 from tqdm import tqdm
-import yaml
 
 from bbpose_ros.core.adaptation.frames import image_fingerprint, RecordedFrame
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions, write_label_set
@@ -56,11 +58,10 @@ from bbpose_ros.core.adaptation.selection import (select_labels, SelectionSettin
 from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, HeadTraining)
 from bbpose_ros.core.adaptation.teacher import Teacher, TeacherPose
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.int8_graphs import int8_graph_path
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
-from bbpose_ros.core.pipeline.loader import WeightFiles
+from bbpose_ros.core.pipeline.loader import PipelineFiles, WeightFiles
 from bbpose_ros.core.pipeline.overlays import draw_box_2d, draw_label
 from bbpose_ros.core.synth.export import BopSceneWriter, write_json
 from bbpose_ros.core.training.cache import TrainingCache
@@ -69,6 +70,7 @@ from bbpose_ros.core.training.quantization import (calibration_crops, calibratio
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.staged_folder import StagedFolder
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 STUDENTS = ('detector', 'qnet')
@@ -129,7 +131,6 @@ class Adaptation:
         options: the node's PipelineOptions (the teacher lays its careful settings over
             them).
         base: the weight files to adapt (concrete paths for detector, qnet and dense).
-        base_params: the node's parameter values ``params.yaml`` starts from.
         out: output folder.
         settings: AdaptSettings.
         progress: show tqdm bars.
@@ -139,11 +140,11 @@ class Adaptation:
     """
 
     def __init__(self, frames: Sequence[RecordedFrame], models: Mapping[str, ObjectModel],
-                 options: PipelineOptions, base: WeightFiles, base_params: Mapping[str, Any],
-                 out: Path, settings: AdaptSettings, progress: bool = True,
+                 options: PipelineOptions, base: WeightFiles, out: Path,
+                 settings: AdaptSettings, progress: bool = True,
                  log: Callable[[str], None] = print, command: str = '') -> None:
         self.frames, self.models = list(frames), dict(models)
-        self.options, self.base, self.base_params = options, base, dict(base_params)
+        self.options, self.base = options, base
         self.out, self.settings = Path(out), settings
         self.progress, self.log, self.command = progress, log, command
         self.report: dict[str, Any] = {}
@@ -170,7 +171,6 @@ class Adaptation:
         stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
         stage('pseudo_labels', self._pseudo_labels, self.out / 'pseudo_labels')
         stage('preview', self._preview, self.out / 'preview.png')
-        self._params()
         return self.folder.finish()
 
     def _fingerprints(self):
@@ -310,17 +310,10 @@ class Adaptation:
         with atomic_output(self.out / 'preview.png') as tmp:
             tmp.write_bytes(png.tobytes())
 
-    def _params(self):
-        """Write ``params.yaml``: the base parameters with the adapted weight files."""
-        out = self.out.resolve()
-        values = dict(self.base_params, detector_weights=str(out / 'detector.pt'),
-                      qnet_weights=str(out / 'qnet.pt'), objects=list(self.models))
-        header = ('# bbpose_node parameters written by bbpose adapt: the base parameters '
-                  'with the\n# weights adapted to the recording (config/bbpose.yaml documents '
-                  'each one).\n')
-        with atomic_output(self.out / 'params.yaml') as tmp:
-            tmp.write_text(header + yaml.safe_dump({'/**': {'ros__parameters': values}},
-                                                   sort_keys=False))
+    def pipeline_files(self) -> PipelineFiles:
+        """Return what the node loads from the output folder: the adapted weight files."""
+        return PipelineFiles(tuple(self.models), weights=WeightFiles(
+            detector=self.out / 'detector.pt', qnet=self.out / 'qnet.pt'))
 
 
 def read_round(folder: Path | str) -> dict[str, list[Verdict]]:

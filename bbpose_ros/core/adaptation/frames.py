@@ -30,8 +30,8 @@ import numpy as np
 
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.data.fingerprints import sha256_of_arrays
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass(frozen=True)

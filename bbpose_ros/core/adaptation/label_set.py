@@ -33,9 +33,9 @@ import numpy as np
 
 from bbpose_ros.core.adaptation.frames import RecordedFrame
 from bbpose_ros.core.adaptation.selection import Verdict
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.cache import (camera_meta, CROP_CONTEXT, CROP_SIZE, scene_entry,
                                             TrainingCache, write_scene_shard)
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 IGNORE_FILE = 'ignore.npz'

@@ -44,8 +44,8 @@ from itertools import combinations
 import numpy as np
 
 from bbpose_ros.core.adaptation.teacher import TeacherPose
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_iou
+from bbpose_ros.core.util.errors import InputError
 
 VERDICTS = ('accepted', 'detection', 'confidence', 'box', 'consistency')
 # Frames two objects must share before their centre distance is judged.

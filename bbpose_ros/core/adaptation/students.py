@@ -44,7 +44,6 @@ from tqdm import tqdm
 
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.detector import CenterBoxNet
 from bbpose_ros.core.nets.qnet import QNet
 from bbpose_ros.core.training.cache import TrainingCache
@@ -54,6 +53,7 @@ from bbpose_ros.core.training.detector_training import (DetectorBatches,
 from bbpose_ros.core.training.loop import cosine_lr
 from bbpose_ros.core.training.object_rows import fit_new_rows, RowTraining
 from bbpose_ros.core.training.qnet_training import QNetTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 HEATMAP_MODES = ('none', 'bias', 'all')
 

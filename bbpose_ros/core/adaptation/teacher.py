@@ -34,11 +34,11 @@ from typing import Any
 import numpy as np
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.loader import load_pipeline, WeightFiles
+from bbpose_ros.core.util.errors import InputError
 
 
 def teacher_options(base: PipelineOptions, score_threshold: float) -> PipelineOptions:

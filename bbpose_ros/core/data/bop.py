@@ -31,10 +31,10 @@ import numpy.typing as npt
 
 from bbpose_ros.core.data.models import fallback_object_name, load_bop_models, MM_TO_M, \
     object_names, ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
 from bbpose_ros.core.geometry.rotations import nearest_rotation
+from bbpose_ros.core.util.errors import InputError
 
 
 # Where the development frames live beside a checkout (overridden by --dataset and

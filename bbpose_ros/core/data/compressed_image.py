@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 CODECS = ('jpeg', 'png')
 # image_transport's compressed publisher's default JPEG quality (its parameter jpeg_quality).

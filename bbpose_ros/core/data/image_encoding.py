@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 # encoding -> (channels, conversion to RGB or None). A Bayer mosaic is named by its first
 # 2x2 block in ROS and by the second row's pair in OpenCV (as cv_bridge maps them).

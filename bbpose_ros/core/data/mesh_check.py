@@ -41,7 +41,7 @@ import trimesh
 
 from bbpose_ros.core.data.models import (check_names, convex_hull_points, MM_TO_M, NAMES_FILE,
                                          read_mesh_file)
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 # Metres per file unit.

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 import trimesh
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 MM_TO_M = 1e-3
 

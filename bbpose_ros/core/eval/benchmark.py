@@ -59,9 +59,9 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.evaluation import ground_truth_detections
-from bbpose_ros.core.latency import latency_stats, stage_stats
+from bbpose_ros.core.pipeline.latency import latency_stats, stage_stats
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame

@@ -17,7 +17,7 @@
 
 Boxes are amodal [u_min, v_min, u_max, v_max] in continuous pixels, compared with the
 ground-truth ``bbox_obj`` boxes. Per object name, detections are matched greedily by score
-(``evaluation.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
+(``matching.match_by_score``) to the instances with visible fraction >= ``min_visib``; a
 detection that only matches a less visible instance is ignored (neither hit nor false alarm).
 Recall is also given over the instances with visible fraction >= 0.3, and how far the
 matched boxes are off (``box_errors``): the Bounding Box Equation's depth scales with the
@@ -35,7 +35,8 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.eval.evaluation import DETECTION_IOU, match_by_score, mean_over_objects
+from bbpose_ros.core.eval.instance_scores import mean_over_objects
+from bbpose_ros.core.eval.matching import DETECTION_IOU, match_by_score
 from bbpose_ros.core.eval.tables import format_object_table
 
 if TYPE_CHECKING:

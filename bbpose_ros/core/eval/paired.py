@@ -32,11 +32,11 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 if TYPE_CHECKING:       # the scoring (and the pipeline it imports) only for the type
-    from bbpose_ros.core.eval.evaluation import InstanceScore
+    from bbpose_ros.core.eval.instance_scores import InstanceScore
 
 # Rates over all paired instances (a missed instance fails each).
 RATES = ('found', 'add_s', 'cm5deg5', 'proj5px')

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from bbpose_ros.core.eval.evaluation import ADD_THRESHOLD, InstanceScore, RE_THRESHOLD_DEG
-from bbpose_ros.core.eval.evaluation import TE_THRESHOLD_M
+from bbpose_ros.core.eval.instance_scores import ADD_THRESHOLD, InstanceScore
+from bbpose_ros.core.eval.instance_scores import RE_THRESHOLD_DEG, TE_THRESHOLD_M
 
 VISIBILITY_EDGES = (0.0, 0.3, 0.5, 0.7, 0.9, 1.0)
 
@@ -36,7 +36,7 @@ def recall_curves(scores: Mapping[str, Sequence[InstanceScore]], path: Path | st
     """
     Write recall vs threshold of ADD(-S), rotation and translation error, one line per object.
 
-    ``scores`` maps object names to lists of evaluation.InstanceScore; a missed instance
+    ``scores`` maps object names to lists of InstanceScore; a missed instance
     counts as a failure at every threshold. Dotted lines mark the report's thresholds.
     """
     panels = (
@@ -68,7 +68,7 @@ def errors_by_visibility(scores: Mapping[str, Sequence[InstanceScore]], path: Pa
 
     Panels: the median rotation error (deg) and translation error (mm) of the found
     instances with their interquartile range, and the shares found and within ADD(-S) of
-    all instances. ``scores`` maps object names to lists of evaluation.InstanceScore; bin k
+    all instances. ``scores`` maps object names to lists of InstanceScore; bin k
     holds visible fractions in (edges[k], edges[k + 1]], the first also edges[0]. Each bin's
     label gives its instance count.
     """
@@ -148,7 +148,7 @@ def confidence_sweep(sweep: Sequence[Mapping[str, float]], path: Path | str) -> 
     """
     Write what a minimum confidence keeps: the share of found poses, and their precision.
 
-    ``sweep`` is ``evaluation.confidence_sweep``'s list.
+    ``sweep`` is ``instance_scores.confidence_sweep``'s list.
     """
     figure, (axis,) = _figure(1, width=6.0, height=4.0)
     thresholds = [row['min_confidence'] for row in sweep]

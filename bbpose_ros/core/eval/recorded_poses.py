@@ -17,7 +17,7 @@ Scoring a running node's recorded poses against a bag's ground truth (``replay-e
 
 The node publishes poses, not its detector's boxes: ground-truth and estimated poses are
 matched through the projection of the object's mesh at each pose, then scored as ``bbpose
-eval`` scores (``evaluation.score_frame``). A frame is any ``GroundTruthFrame`` (a
+eval`` scores (``instance_scores.score_frame``). A frame is any ``GroundTruthFrame`` (a
 ``bags.reader.BagFrame``); a ``Recording`` holds what the node answered, by image stamp
 (``cli.graph.replay.Recorder`` fills it).
 """
@@ -30,11 +30,11 @@ import numpy as np
 
 from bbpose_ros.core.data.bop import GroundTruthInstance
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.eval.evaluation import InstanceScore, pose_box, score_frame
-from bbpose_ros.core.eval.evaluation import summarize_objects
+from bbpose_ros.core.eval.instance_scores import InstanceScore, score_frame, summarize_objects
+from bbpose_ros.core.eval.matching import pose_box
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rigid import invert_rigid
-from bbpose_ros.core.latency import timing_summary
+from bbpose_ros.core.pipeline.latency import timing_summary
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 
 RecordedPose = tuple[str, np.ndarray, np.ndarray]   # object name, rotation (3, 3), t (3,) m
@@ -134,7 +134,7 @@ def map_in_cameras(frames: Sequence[GroundTruthFrame],
                    map_poses: Mapping[int, Sequence[RecordedPose]]
                    ) -> dict[int, list[RecordedPose]]:
     """
-    The node's map poses (fixed frame) of each frame, carried into its camera frame.
+    Carry the node's map poses (fixed frame) of each frame into its camera frame.
 
     ``frames``: BagFrames with ``world_from_camera`` (the bag's /tf); a frame without one,
     or without a map message, gets no poses.

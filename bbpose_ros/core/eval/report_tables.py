@@ -47,7 +47,7 @@ from pathlib import Path
 import re
 from typing import Any
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 REPORTS_DIR = Path('docs', 'reports')

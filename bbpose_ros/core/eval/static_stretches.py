@@ -114,7 +114,7 @@ def camera_poses(stretch: Sequence[BopFrame],
 def noisy_pose(world_from_camera: np.ndarray, sigma_mm: float, sigma_deg: float,
                rng: np.random.Generator) -> np.ndarray:
     """
-    A camera pose with a TF-like error: isotropic Gaussian offsets of the given RMS size.
+    Give a camera pose a TF-like error: isotropic Gaussian offsets of the given RMS size.
 
     The position moves by a vector whose root-mean-square length is ``sigma_mm``; the
     camera turns about a random axis by a rotation vector whose RMS angle is ``sigma_deg``.
@@ -125,7 +125,7 @@ def noisy_pose(world_from_camera: np.ndarray, sigma_mm: float, sigma_deg: float,
 
 
 def bop_camera_fields(world_from_camera: np.ndarray) -> dict[str, list[float]]:
-    """BOP's ``cam_R_w2c`` (9,) and ``cam_t_w2c`` (3,) millimetres of a world_from_camera."""
+    """Return BOP's ``cam_R_w2c`` (9,) and ``cam_t_w2c`` (3,) mm of a world_from_camera."""
     camera_from_world = invert_rigid(world_from_camera)
     return {'cam_R_w2c': camera_from_world[:3, :3].reshape(-1).tolist(),
             'cam_t_w2c': (camera_from_world[:3, 3] * 1e3).tolist()}

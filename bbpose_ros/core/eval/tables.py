@@ -16,7 +16,7 @@
 """Plain-text tables of per-object figures, as ``bbpose eval`` prints them."""
 
 import math
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 # (key in the row dict, column title, format); '{:d}' columns print as integers. The
 # Markdown tables of the docs have columns of their own (report_tables.Column).
@@ -45,4 +45,31 @@ def format_object_table(rows: Mapping[str, Mapping], mean: Mapping,
         if name == 'mean':
             lines.append('-' * len(header))
         lines.append(f'{name:<12}' + ''.join(cells))
+    return '\n'.join(lines)
+
+
+TABLE_COLUMNS = (('n', 'n', '{:d}'), ('detected', 'found', '{:d}'),
+                 ('add_s_recall', 'ADD(-S)', '{:.3f}'), ('cm5deg5', '5cm5deg', '{:.3f}'),
+                 ('proj5px', 'proj5px', '{:.3f}'), ('re_median_deg', 're_med_deg', '{:.2f}'),
+                 ('te_median_mm', 'te_med_mm', '{:.1f}'),
+                 ('euler_mean_deg', 'euler_deg', '{:.2f}'))
+
+
+def format_report(report: Mapping[str, Any]) -> str:
+    """Format the per-object table of a report, with the mean row and stage timings."""
+    lines = [format_object_table(report['objects'], report['mean'], TABLE_COLUMNS, 11)]
+    timing = ', '.join(f'{stage} {t["median"]:.2f} ms (p95 {t["p95"]:.2f})'
+                       for stage, t in report.get('timing_ms', {}).items())
+    if timing:
+        lines.append(f'timing per frame: {timing}')
+    if report.get('sources'):
+        lines.append('poses found from: ' + '; '.join(
+            f'{source} {row["n"]} (ADD(-S) {row["add_s_recall"]:.3f}, 5cm5deg '
+            f'{row["cm5deg5"]:.3f})' for source, row in report['sources'].items()))
+    if report.get('confidence'):
+        lines.append('minimum confidence: share of found poses kept, and of those kept the '
+                     'share passing ADD(-S) / 5cm5deg')
+        lines += [f'  >= {row["min_confidence"]:.1f}: kept {row["kept"]:.2f}, ADD(-S) '
+                  f'{row["add_s_precision"]:.3f}, 5cm5deg {row["cm5deg5_precision"]:.3f}'
+                  for row in report['confidence']]
     return '\n'.join(lines)

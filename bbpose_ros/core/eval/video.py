@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 # MPEG-4 Part 2, the one MP4 codec OpenCV's pip wheel writes (it has no H.264 encoder);

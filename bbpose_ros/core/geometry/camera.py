@@ -20,7 +20,7 @@ from typing import Self
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass(frozen=True)

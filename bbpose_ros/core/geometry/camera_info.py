@@ -38,8 +38,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.util.errors import InputError
 
 # distortion_model -> the numbers of coefficients it takes in field d
 DISTORTION_MODELS = {'plumb_bob': (4, 5), 'rational_polynomial': (8,), 'equidistant': (4,)}

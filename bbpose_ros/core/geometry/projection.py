@@ -26,8 +26,8 @@ Poses are model-to-camera: x_cam = R x_model + t, metres. Pixel coordinates foll
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.util.errors import InputError
 
 
 def transform_points(points: npt.ArrayLike, rotation: npt.ArrayLike,

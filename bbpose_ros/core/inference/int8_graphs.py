@@ -40,10 +40,10 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import export_module
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.detector import DetectorConfig, peaks
+from bbpose_ros.core.util.errors import InputError
 
 INT8_FORMAT = '1'
 INPUT_NAMES = {'detector': ('images',), 'qnet': ('crops', 'object_index')}

@@ -38,7 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')

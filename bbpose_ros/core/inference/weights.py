@@ -39,10 +39,10 @@ from typing import Any
 
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
 from bbpose_ros.core.nets.qnet import QNet, QNetConfig
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 FORMAT_VERSION = 1

@@ -35,7 +35,7 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 # (repeats, kernel, stride, expansion, input channels, output channels) of each stage.
 LITE0_STAGES = ((1, 3, 1, 1, 32, 16), (2, 3, 2, 6, 16, 24), (2, 5, 2, 6, 24, 40),

@@ -31,7 +31,6 @@ import numpy as np
 import torch
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import DensePose, pose_from_dense_maps
@@ -40,6 +39,7 @@ from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.dense import DenseNet
 from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -27,11 +27,10 @@ other stage is the one the options build.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import use_inference_threads
 from bbpose_ros.core.inference.int8_graphs import choose_int8_graph
 from bbpose_ros.core.inference.options import PipelineOptions
@@ -44,8 +43,10 @@ from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.refinement import load_pose_refiner
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
+from bbpose_ros.core.pipeline.stream_schedule import in_place_fallback, stream_routes
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -61,6 +62,21 @@ class WeightFiles:
     detector: Path | str | None = None
     qnet: Path | str | None = None
     dense: Path | str | None = None
+
+
+@dataclass(frozen=True)
+class PipelineFiles:
+    """
+    What a tool made for the node to load: its objects, their dataset folder, weight files.
+
+    ``bbpose add-object`` and ``bbpose adapt`` return one; ``ros/params_file.py`` turns it
+    into the node's parameters. ``dataset_dir`` and the weight files are None where the tool
+    leaves the node's value as it was.
+    """
+
+    objects: tuple[str, ...]
+    dataset_dir: Path | None = None
+    weights: WeightFiles = WeightFiles()
 
 
 @dataclass(frozen=True)
@@ -106,11 +122,7 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
     """
     use_inference_threads(options)
     names = list(models)
-    # Stream mode's route for the frames the camera leaves time for, where it differs: it
-    # shares the stages, each route running those it uses.
-    routes = [options]
-    if options.tracking_stream and options.tracking_in_place_pose_source != options.pose_source:
-        routes.append(replace(options, pose_source=options.tracking_in_place_pose_source))
+    routes = stream_routes(options)
     refiner = None
     if options.refine:
         refiner = load_pose_refiner(models, options, progress=False, log=log)
@@ -141,15 +153,10 @@ def load_pipeline(models: Mapping[str, ObjectModel], options: PipelineOptions,
         try:
             correspondences = load_correspondences(models, options, weights.dense)
         except InputError as err:
-            # Only the in-place route gives way, and only with the shipped net (e.g. an
-            # object it was not trained on): a file the user names must load.
-            if dense[0] or weights.dense is not None:
+            kept = in_place_fallback(routes, dense, weights.dense is not None, err, log)
+            if kept is None:
                 raise
-            if log is not None:
-                log(f'tracking_in_place_pose_source {routes[1].pose_source} needs the dense '
-                    f'net ({err}); the frames detected in place take pose_source '
-                    f'{options.pose_source}')
-            routes, dense = routes[:1], dense[:1]
+            routes, dense = kept
     pipelines = [PosePipeline(models, route, detector,
                               rotation if route.uses_qnet else None,
                               hypothesis_selector=HypothesisSelector(

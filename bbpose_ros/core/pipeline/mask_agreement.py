@@ -37,10 +37,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+from bbpose_ros.core.util.errors import InputError
 
 _SUBPIXEL_BITS = 4
 # Contour points used of a view's (ordered) ones: a mask cell spans several of them.

@@ -41,15 +41,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.bbox_equation import pad_point_sets, solve_translations
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.latency import StageTimer
 from bbpose_ros.core.pipeline.box_correction import corrected_detections
 from bbpose_ros.core.pipeline.hypotheses import HypothesisSelector
+from bbpose_ros.core.pipeline.latency import StageTimer
 from bbpose_ros.core.pipeline.poses import (Detection, FrameResult, PoseEstimate,
                                             RotationHypotheses)
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.mask_agreement import MaskAgreement
@@ -43,6 +42,7 @@ from bbpose_ros.core.refine.refiner import (compile_kernels, refine_poses, Refin
                                             RefinerConfig)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -30,7 +30,6 @@ from scipy.special import log_softmax
 import torch
 from torch import nn
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rotations import quat_multiply, quat_wxyz_to_matrix, ray_quaternion
@@ -39,6 +38,7 @@ from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.qnet import HypothesisOutputs, QNet
 from bbpose_ros.core.pipeline.poses import Detection, RotationHypotheses
+from bbpose_ros.core.util.errors import InputError
 
 
 class QNetRotationEstimator:

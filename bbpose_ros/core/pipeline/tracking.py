@@ -40,15 +40,10 @@ frame's timings then carry the adopted job's ``stream_job`` (how long the full p
 ran) and ``stream_age`` (how old its poses are when adopted: from their frame's handing
 over to the adoption), milliseconds.
 
-A camera slower than the full pipeline leaves it the time to run in the frame: where the
-frame period (from the image stamps) exceeds ``STREAM_HEADROOM`` times the pipeline's run
-time, no frame is handed on; once no job runs, stream mode detects in the frame itself, as
-tracking mode does, and answers with the frame's own detections instead of poses carried
-over a large motion. So is a stream's first frame (no period known yet): a single image is
-answered with its poses. A tracker given a second pipeline (``in_place``: the loader's
-``tracking_in_place_pose_source`` route, slower and more accurate) detects with it instead
-where the period holds that route's run time too (learned the same way; tried when not
-known yet, and again now and then where it did not fit).
+Where a frame is detected (handed on, or in the frame itself where the camera leaves the
+full pipeline the time) and by which route (``in_place``: the loader's
+``tracking_in_place_pose_source`` route, slower and more accurate) is stream mode's schedule,
+``stream_schedule.StreamSchedule``, learned from the image stamps and the routes' run times.
 
 Tracks are per object name: one instance of each object is tracked (with ``max_instances``
 above 1, the other detections of a tracked object are not reported while it is tracked).
@@ -63,15 +58,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
-from bbpose_ros.core.latency import StageTimer
 from bbpose_ros.core.pipeline.background_detection import BackgroundDetection
+from bbpose_ros.core.pipeline.latency import StageTimer
 from bbpose_ros.core.pipeline.pose_pipeline import PosePipeline
 from bbpose_ros.core.pipeline.poses import FrameResult, PoseEstimate
 from bbpose_ros.core.pipeline.refinement import PoseRefiner
+from bbpose_ros.core.pipeline.stream_schedule import StreamSchedule
 from bbpose_ros.core.refine.color_histograms import ColorHistograms
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -82,16 +78,6 @@ if TYPE_CHECKING:
 TRACK_ITERATIONS = 3
 # How far a track's colour model moves towards each frame's (0..1).
 TRACK_COLOR_RATE = 0.2
-# Stream mode detects in the frame itself where the frame period exceeds the full
-# pipeline's run time this many times (a margin for the tracks' own refinement and jitter).
-STREAM_HEADROOM = 1.25
-# Weight of the newest frame period and pipeline run time in their running means (0..1).
-STREAM_SMOOTHING = 0.2
-# Stamp steps outside (0, this] seconds are not a frame period (a jump in the stream).
-MAX_FRAME_PERIOD_S = 5.0
-# Where the in-place pipeline measured too slow for the frame period, every this many frames
-# detected in place try it again (a slow run may have been a passing load).
-IN_PLACE_RETRY_EVERY = 10
 
 
 @dataclass
@@ -125,11 +111,7 @@ class PoseTracker:
         self._since_detection = 0
         self._background = BackgroundDetection(pipeline) \
             if pipeline.options.tracking_stream else None
-        self._last_frame: tuple[float, int | None] | None = None    # (stamp_s, index)
-        self._frame_period_s: float | None = None     # running means, seconds
-        self._pipeline_s: float | None = None
-        self._in_place_s: float | None = None
-        self._in_place_skipped = 0      # frames detected in place without it since it ran
+        self._schedule = StreamSchedule(in_place is not None)
 
     @property
     def options(self) -> PipelineOptions:
@@ -152,8 +134,7 @@ class PoseTracker:
             self._background.stop()
         self.tracks.clear()
         self._since_detection = 0
-        # A new stream tries the in-place pipeline again (its one slow frame may be past).
-        self._last_frame = self._frame_period_s = self._in_place_s = None
+        self._schedule.reset()
 
     def close(self) -> None:
         """Reset and stop for good: later frames are answered by the tracks alone."""
@@ -193,14 +174,13 @@ class PoseTracker:
     def _stream(self, image_rgb, camera, stamp_s, frame_index):
         """Stream mode: adopt the finished job's poses, track, detect (here or beside)."""
         timer = StageTimer()
-        self._frame_period_s = self._observe(self._frame_period_s,
-                                             self._frame_step(stamp_s, frame_index))
+        self._schedule.frame(stamp_s, frame_index)
         untracked = []
         finished = self._background.take()
         if finished is not None:
             if finished.error is not None:
                 raise finished.error
-            self._pipeline_s = self._observe(self._pipeline_s, finished.run_ms * 1e-3)
+            self._schedule.pipeline_ran(finished.run_ms * 1e-3)
             untracked = self._adopt(finished.result.poses)
             timer.timings_ms.update(stream_job=finished.run_ms,
                                     stream_age=(timer.start_s - finished.handed_s) * 1e3)
@@ -211,12 +191,12 @@ class PoseTracker:
         self._since_detection += 1
         if self._background.waiting or not self.tracks or lost or \
                 self._since_detection >= self.options.tracking_redetect_every:
-            if not self._camera_leaves_time():
+            if not self._schedule.camera_leaves_time():
                 self._background.hand(image_rgb, camera)
                 self._since_detection = 0
             elif self._background.idle:     # else the job in hand ends before long
-                untracked = self._detect_here(image_rgb, camera, timer,
-                                              self._pipeline_in_place())
+                in_place = self.in_place if self._schedule.takes_in_place() else None
+                untracked = self._detect_here(image_rgb, camera, timer, in_place)
                 self._background.take()     # a job that ended meanwhile is older: dropped
         return FrameResult([track.pose for track in self.tracks.values()] + untracked,
                            timer.total())
@@ -228,59 +208,13 @@ class PoseTracker:
         result = pipeline.estimate(image_rgb, camera)
         seconds = result.timings_ms['total'] * 1e-3
         if pipeline is self.pipeline:
-            self._pipeline_s = self._observe(self._pipeline_s, seconds)
+            self._schedule.pipeline_ran(seconds)
         else:
-            self._in_place_s = self._observe(self._in_place_s, seconds)
+            self._schedule.in_place_ran(seconds)
         timer.timings_ms.update((stage, ms) for stage, ms in result.timings_ms.items()
                                 if stage != 'total')
         self._since_detection = 0
         return self._adopt(result.poses)
-
-    def _frame_step(self, stamp_s, frame_index):
-        """Return the camera's seconds per frame since the previous call, None across a jump."""
-        last, self._last_frame = self._last_frame, (stamp_s, frame_index)
-        if last is None:
-            return None
-        frames = 1 if frame_index is None or last[1] is None else frame_index - last[1]
-        if frames < 1 or not 0.0 < stamp_s - last[0] <= MAX_FRAME_PERIOD_S * frames:
-            return None
-        return (stamp_s - last[0]) / frames
-
-    @staticmethod
-    def _observe(mean, value):
-        """Return a running mean (None: none yet) moved towards ``value`` (None: kept)."""
-        if value is None:
-            return mean
-        return value if mean is None else mean + STREAM_SMOOTHING * (value - mean)
-
-    def _camera_leaves_time(self):
-        """
-        Tell whether the frame period holds the full pipeline with headroom (stream mode).
-
-        Before two stamps give a period (a stream's first frame; ``reset`` starts a new
-        stream) it does: there is nothing to answer from but the frame itself.
-        """
-        return self._frame_period_s is None or self._pipeline_s is None or \
-            self._frame_period_s > STREAM_HEADROOM * self._pipeline_s
-
-    def _pipeline_in_place(self):
-        """
-        Return the pipeline that detects a frame in place (stream mode, the camera leaving time).
-
-        ``in_place`` where the frame period holds its run time with headroom, or that is not
-        known yet, or it was last tried ``IN_PLACE_RETRY_EVERY`` such frames ago (its run
-        time is then measured afresh); else, and before a period is known, ``pipeline``.
-        """
-        period = self._frame_period_s
-        if self.in_place is None or period is None:
-            return self.pipeline
-        if self._in_place_skipped + 1 >= IN_PLACE_RETRY_EVERY:
-            self._in_place_s = None         # measured afresh
-        if self._in_place_s is None or period > STREAM_HEADROOM * self._in_place_s:
-            self._in_place_skipped = 0
-            return self.in_place
-        self._in_place_skipped += 1
-        return self.pipeline
 
     def _follow_tracks(self, image_rgb, camera):
         """Refine every track from its last pose; drop the lost ones; tell if any was."""

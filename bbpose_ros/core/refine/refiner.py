@@ -43,7 +43,6 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.refine import kernel_launch
@@ -52,6 +51,7 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import newton_update, start_prior
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+from bbpose_ros.core.util.errors import InputError
 
 # A pose with fewer valid correspondence lines in an iteration stops: 'too_few_lines'.
 LOCAL_COLORS_MAX_SCALE = 2  # local colour models serve the finer scales (pixels a segment)

@@ -46,13 +46,13 @@ import math
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.refine import (contour_projection, kernel_launch, line_distributions,
                                     line_gradient, line_histograms)
 from bbpose_ros.core.refine.color_histograms import BINS_PER_CHANNEL
 from bbpose_ros.core.refine.foreground_masks import ForegroundMasks, OUTSIDE_LOG_ODDS
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+from bbpose_ros.core.util.errors import InputError
 
 FUNCTION_LENGTH = 8         # segments of the smoothed step function
 DISTRIBUTION_LENGTH = 12    # contour positions considered on each line

@@ -28,9 +28,9 @@ from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.refine.viewpoint_model import (build_viewpoint_model, mesh_digest,
                                                     ViewpointModel)
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 if TYPE_CHECKING:

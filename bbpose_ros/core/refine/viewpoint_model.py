@@ -42,8 +42,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.refine import contour_projection
+from bbpose_ros.core.util.errors import InputError
 
 # The template camera: at TEMPLATE_DISTANCE_M from the model origin, the diameter spans
 # TEMPLATE_DIAMETER_PX pixels (sub-pixel contours; cost grows with the square of it).

@@ -32,13 +32,13 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render import shaders
 from bbpose_ros.core.render.clip_space import gl_matrix, opengl_projection
 from bbpose_ros.core.render.mesh import RenderMesh
 from bbpose_ros.core.render.scene_light import Material, SceneLights, TexturedPlane
+from bbpose_ros.core.util.errors import InputError
 
 # The instance-id target is 8 bits wide and 0 is the background.
 MAX_DRAWS = 255

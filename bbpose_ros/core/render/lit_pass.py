@@ -19,11 +19,11 @@ from collections.abc import Sequence
 import moderngl
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.render import lit_shaders
 from bbpose_ros.core.render.clip_space import gl_matrix
 from bbpose_ros.core.render.scene_light import light_matrix, MAX_LIGHTS, PointLight, \
     SceneLights, SHADOW_MAP_SIZE, TexturedPlane
+from bbpose_ros.core.util.errors import InputError
 
 # Depth offset of the shadow pass (glPolygonOffset factor, units): no self-shadow acne.
 _SHADOW_OFFSET = (2.0, 8.0)

@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bbpose_ros.core.data.models import convex_hull_points, ObjectModel
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass(frozen=True)

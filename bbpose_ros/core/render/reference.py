@@ -23,9 +23,9 @@ the projected triangle; depth is interpolated perspective-correctly (1/z linear 
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import transform_points
+from bbpose_ros.core.util.errors import InputError
 
 # Candidate pixels evaluated per chunk (bounds memory for large triangles).
 _CHUNK_PIXELS = 1 << 21

@@ -27,10 +27,10 @@ import math
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render.clip_space import opengl_projection
 from bbpose_ros.core.render.lit_shaders import MAX_LIGHTS
+from bbpose_ros.core.util.errors import InputError
 
 __all__ = ['MAX_LIGHTS', 'Material', 'PointLight', 'SceneLights', 'SHADOW_MAP_SIZE',
            'TexturedPlane', 'light_matrix']

@@ -89,7 +89,7 @@ def _closest_copy(reference, rotation, symmetry_r):
 
 @numba.njit(cache=True, nogil=True)
 def _aligned(rotation, translation, symmetry_r, symmetry_t, s):
-    """The pose (R @ S_R, R @ S_t + t) of symmetry ``s``."""
+    """Return the pose (R @ S_R, R @ S_t + t) of symmetry ``s``."""
     return rotation @ symmetry_r[s], translation + rotation @ symmetry_t[s]
 
 
@@ -116,7 +116,7 @@ def _agreement(rotations_a, translations_a, covariances_a, rotations_b, translat
 def agreement(rotations_a: np.ndarray, translations_a: np.ndarray, covariances_a: np.ndarray,
               rotations_b: np.ndarray, translations_b: np.ndarray, covariances_b: np.ndarray,
               symmetries: np.ndarray, gate_deg: float) -> np.ndarray:
-    """(A, B) bool: which poses of set a agree with which of set b (module docstring)."""
+    """Return (A, B) bool: which poses of set a agree with which of set b (module doc)."""
     return _agreement(rotations_a, translations_a, covariances_a, rotations_b, translations_b,
                       covariances_b, np.ascontiguousarray(symmetries[:, :3, :3]),
                       np.ascontiguousarray(symmetries[:, :3, 3]), _min_trace(gate_deg),
@@ -124,7 +124,7 @@ def agreement(rotations_a: np.ndarray, translations_a: np.ndarray, covariances_a
 
 
 def _min_trace(gate_deg):
-    """The trace of R_a^T R_b at which the angle between them reaches the gate."""
+    """Return the trace of R_a^T R_b at which the angle between them reaches the gate."""
     return 1.0 + 2.0 * math.cos(math.radians(gate_deg))
 
 

@@ -42,7 +42,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.geometry.rigid import invert_rigid, is_rigid
@@ -51,6 +50,7 @@ from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.consensus import agreement, fuse_views, FusedPose
 from bbpose_ros.core.scene.views import camera_covariance, ray_covariance, view_in_world
 from bbpose_ros.core.scene.views import ViewedPose
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
@@ -119,7 +119,7 @@ class _Entry:
         return [candidate for view in self.views for candidate in view]
 
     def inlier_candidates(self) -> list[ViewedPose]:
-        """The candidates the fused pose was made of (one a view at most)."""
+        """Return the candidates the fused pose was made of (one a view at most)."""
         return [c for c, inlier in zip(self.candidates, self.fused.inliers) if inlier]
 
     def add(self, view: list[ViewedPose]) -> None:
@@ -134,8 +134,8 @@ class _Entry:
         if self.views and _ray_angle_deg(self.views[-1][0], view[0]) < \
                 self.options.map_keyframe_deg:
             fused = self.fused
-            if self._agreement(_first(new), (fused.rotation[None], fused.translation[None],
-                                              fused.covariance[None]))[0, 0]:
+            as_stacked = (fused.rotation[None], fused.translation[None], fused.covariance[None])
+            if self._agreement(_first(new), as_stacked)[0, 0]:
                 self.seen_ns = max(self.seen_ns, view[0].stamp_ns)
                 return
             self._drop(len(self.views) - 1)
@@ -193,7 +193,7 @@ def _stack(candidates):
 
 
 def _first(stacked):
-    """The first pose of stacked candidates, stacked."""
+    """Return the first pose of stacked candidates, stacked."""
     return tuple(part[:1] for part in stacked)
 
 
@@ -244,7 +244,7 @@ class ObjectMap:
         return view
 
     def objects(self) -> list[MapObject]:
-        """The map's objects, by name."""
+        """Return the map's objects, by name."""
         found = []
         for name in sorted(self._entries):
             entry = self._entries[name]
@@ -258,7 +258,7 @@ class ObjectMap:
                       poses: Sequence[PoseEstimate] = (),
                       view: int | None = None) -> list[PoseEstimate]:
         """
-        The map's objects in one image's camera frame, those in front of it and in the image.
+        Return the map's objects in one image's camera frame, those in front and in the image.
 
         ``poses``: that image's own poses (camera frame) and ``view`` its index from
         ``add_view``: where the map still holds that view as agreeing with it, the image's
@@ -285,7 +285,7 @@ class ObjectMap:
         return found
 
     def _inlier_of(self, name, view):
-        """The object's candidate of view ``view`` the fused pose holds, or None."""
+        """Return the object's candidate of view ``view`` the fused pose holds, or None."""
         return next((c for c in self._entries[name].inlier_candidates() if c.view == view),
                     None)
 
@@ -298,8 +298,8 @@ class ObjectMap:
         measured = ray_covariance(anchor.translation_camera, 0.5 * (camera.fx + camera.fy),
                                   self.options)
         prior_info, measured_info = np.linalg.inv(prior), np.linalg.inv(measured)
-        return np.linalg.solve(prior_info + measured_info,
-                               prior_info @ translation + measured_info @ anchor.translation_camera)
+        return np.linalg.solve(prior_info + measured_info, prior_info @ translation
+                               + measured_info @ anchor.translation_camera)
 
 
 def _checked(world_from_camera):
@@ -319,17 +319,18 @@ def _candidates(pose):
 
 
 def _most_confident(poses, models):
-    """The most confident pose of each object the map has a model of."""
+    """Return the most confident pose of each object the map has a model of."""
     best = {}
     for pose in poses:
-        if pose.object_name in models and np.all(np.isfinite(pose.translation)) and (
-                pose.object_name not in best or pose.confidence > best[pose.object_name].confidence):
-            best[pose.object_name] = pose
+        name = pose.object_name
+        if name in models and np.all(np.isfinite(pose.translation)) and (
+                name not in best or pose.confidence > best[name].confidence):
+            best[name] = pose
     return list(best.values())
 
 
 def _box_in_image(model, camera, rotation, translation):
-    """The model's projected box where it is in front of the camera and overlaps the image."""
+    """Return the projected box where the model is in front and overlaps the image, or None."""
     try:
         box = projected_box_uv(camera, model.hull_points, rotation, translation)
     except InputError:

@@ -45,9 +45,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
 from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.util.errors import InputError
 
 QUATERNION_TOLERANCE = 1e-2     # |x^2 + y^2 + z^2 + w^2 - 1| above this: refused
 MAX_CHAIN = 100                 # more links than this between two frames: a loop

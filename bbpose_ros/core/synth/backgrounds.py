@@ -21,7 +21,7 @@ from typing import Any, Self
 import cv2
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def _gradient(rng, height, width):

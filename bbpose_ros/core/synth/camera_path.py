@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth.stable_poses import yaw_rotation
+from bbpose_ros.core.util.errors import InputError
 
 
 def orbit_path(world_to_camera: np.ndarray, count: int, rate_hz: float, degrees_per_s: float,

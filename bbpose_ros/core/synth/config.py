@@ -16,7 +16,7 @@
 
 from dataclasses import asdict, dataclass
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,6 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.dense_grid import model_box
@@ -51,6 +50,7 @@ from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
     random_pixel
 from bbpose_ros.core.synth.shapes import random_shape
+from bbpose_ros.core.util.errors import InputError
 
 # Attempts at a sample with enough of the target visible before giving up.
 _ATTEMPTS = 50

@@ -28,7 +28,7 @@ Coordinates are normalised by the model's axis-aligned box (``geometry.dense_gri
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 
 def dense_targets(model_coordinates: np.ndarray, visible: np.ndarray, amodal: np.ndarray,

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh, RenderResult
@@ -37,6 +36,7 @@ from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
     random_pixel
 from bbpose_ros.core.synth.shapes import random_shape
+from bbpose_ros.core.util.errors import InputError
 
 # Closest a mesh's bounding sphere may come to the camera plane (metres).
 _MIN_DEPTH = 0.05

@@ -25,8 +25,8 @@ spread up to 0.28-0.56 m from their centroid.
 from dataclasses import asdict, dataclass, field
 import math
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.synth.config import SynthConfig
+from bbpose_ros.core.util.errors import InputError
 
 # Camera effects of the table scenes: blur and noise of a Kinect-like sensor.
 TABLE_EFFECTS = SynthConfig(blur_probability=0.5, blur_sigma_range=(0.3, 1.2),

@@ -36,7 +36,6 @@ from pathlib import Path
 import numpy as np
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.render import MeshRenderer
 from bbpose_ros.core.render.gl_renderer import Draw
@@ -50,6 +49,7 @@ from bbpose_ros.core.synth.stable_poses import load_stable_poses, StablePoses, y
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_layout import draw_camera_pose, in_disc, place_meshes, \
     TableLayout
+from bbpose_ros.core.util.errors import InputError
 
 # Closest any mesh point may come to the camera plane (metres).
 _MIN_DEPTH = 0.1

@@ -26,9 +26,11 @@ first stage whose output is missing (the renders resume shard by shard):
 3. ``detector.pt``, ``qnet.pt``, ``dense.pt``: the base networks with a block of rows for
    the new object, trained on the renders with everything else frozen (``object_rows``).
 4. ``detector_int8.onnx``, ``qnet_int8.onnx``: their int8 graphs, calibrated on the renders.
-5. ``preview.png`` (rendered scenes with boxes, crops as Q-Net sees them), ``params.yaml``
-   (the node's parameters) and ``report.json`` (stage times, settings, the figures on the
-   held-out renders).
+5. ``preview.png`` (rendered scenes with boxes, crops as Q-Net sees them) and
+   ``report.json`` (stage times, settings, the figures on the held-out renders).
+
+``pipeline_files`` tells what the node loads from the folder; ``bbpose add-object`` writes it
+as the node's parameters, ``params.yaml`` (``ros/params_file.py``).
 
 ``inputs.json`` records what the folder was made from; a second run with other inputs is
 refused rather than mixing two objects' files.
@@ -50,9 +52,9 @@ from bbpose_ros.core.data.fingerprints import sha256_of_arrays
 from bbpose_ros.core.data.mesh_check import CheckedMesh, MM_TO_M, write_bop_model
 from bbpose_ros.core.data.models import (load_bop_models, load_models_info, NAMES_FILE,
                                          object_names)
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.int8_graphs import file_sha256, int8_graph_path
 from bbpose_ros.core.inference.weights import load_network, save_weights
+from bbpose_ros.core.pipeline.loader import PipelineFiles, WeightFiles
 from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
 from bbpose_ros.core.synth.export import camera_json, draw_preview
 from bbpose_ros.core.synth.table_config import TableConfig
@@ -67,6 +69,7 @@ from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
 from bbpose_ros.core.training.staged_folder import StagedFolder
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 NETWORKS = ('detector', 'qnet', 'dense')
@@ -211,7 +214,6 @@ class AddObject:
             stage(kind, lambda kind=kind: self._network(kind), self.out / f'{kind}.pt')
         stage('int8', self._int8, int8_graph_path(self.out / 'qnet.pt'))
         stage('preview', self._preview, self.out / 'preview.png')
-        self._params()
         if not self.keep_renders and (self.out / 'renders').exists():
             size = _folder_bytes(self.out / 'renders')
             shutil.rmtree(self.out / 'renders')
@@ -353,32 +355,20 @@ class AddObject:
         with atomic_output(self.out / 'preview.png') as tmp:
             tmp.write_bytes(png.tobytes())
 
-    def _params(self):
-        """Write ``params.yaml``: the node's objects, dataset and weight files."""
-        write_params_file(self.out / 'params.yaml', node_parameters(self.out, self.objects))
+    def pipeline_files(self) -> PipelineFiles:
+        """Return what the node loads from the output folder (``output_files``)."""
+        return output_files(self.out, self.objects)
 
 
-def node_parameters(out: Path, objects: Sequence[str]) -> dict[str, Any]:
+def output_files(out: Path, objects: Sequence[str]) -> PipelineFiles:
     """
-    {name: value} of the node's parameters that load the objects and networks in ``out``.
+    Return the objects, dataset folder and weight files of an add-object folder ``out``.
 
-    They are the node's own parameters, declared in ros/params.py (``PARAMETERS``), which
-    the core may not import: test_add_object.py holds these names and values to that
-    declaration. Every other parameter keeps its default (config/bbpose.yaml).
+    Every other node parameter keeps its default (config/bbpose.yaml).
     """
-    out = Path(out).resolve()
-    return {'objects': list(objects), 'dataset_dir': str(out / 'dataset'),
-            **{f'{kind}_weights': str(out / f'{kind}.pt') for kind in NETWORKS}}
-
-
-def write_params_file(path: Path, parameters: Mapping[str, Any]) -> None:
-    """Write a node parameters file of ``parameters`` ({name: value}; JSON values are YAML)."""
-    lines = ['# bbpose_node parameters written by bbpose add-object; the others keep their',
-             '# defaults (config/bbpose.yaml documents every parameter).',
-             '/**:', '  ros__parameters:']
-    lines += [f'    {name}: {json.dumps(value)}' for name, value in parameters.items()]
-    with atomic_output(path) as tmp:
-        tmp.write_text('\n'.join(lines) + '\n')
+    out = Path(out)
+    return PipelineFiles(tuple(objects), out / 'dataset',
+                         WeightFiles(*(out / f'{kind}.pt' for kind in NETWORKS)))
 
 
 def _folder_bytes(folder: Path) -> int:

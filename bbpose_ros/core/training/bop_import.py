@@ -52,7 +52,6 @@ import cv2
 import numpy as np
 
 from bbpose_ros.core.data.bop import BopDataset
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -60,6 +59,7 @@ from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.synth.crop_scenes import CropSample
 from bbpose_ros.core.training import cache as scene_cache
 from bbpose_ros.core.training import crop_cache
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

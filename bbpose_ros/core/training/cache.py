@@ -43,10 +43,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.boxes import jitter_boxes
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 if TYPE_CHECKING:

@@ -41,10 +41,10 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.training.cache import camera_meta, photo_count, render_shards, \
     whole_shards
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 if TYPE_CHECKING:

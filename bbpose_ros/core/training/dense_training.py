@@ -38,7 +38,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.metrics import cm_deg_errors
 from bbpose_ros.core.geometry.boxes import box_centres
 from bbpose_ros.core.geometry.dense_grid import model_box
@@ -51,6 +50,7 @@ from bbpose_ros.core.training.augment import augment_batch
 from bbpose_ros.core.training.crop_cache import instance_split
 from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.settings import DenseTrainSettings
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel

@@ -33,7 +33,7 @@ from typing import Any
 
 import torch
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 DEVICES = ('cpu', 'cuda')
 

@@ -33,8 +33,8 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.training.device import cpu_copy, TrainingDevice
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 

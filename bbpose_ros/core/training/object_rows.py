@@ -41,7 +41,6 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from bbpose_ros.core.data.models import ObjectModel
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.nets.dense import DenseNet, PER_OBJECT
 from bbpose_ros.core.nets.detector import CenterBoxNet
 from bbpose_ros.core.nets.qnet import QNet
@@ -55,6 +54,7 @@ from bbpose_ros.core.training.loop import cosine_lr
 from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
+from bbpose_ros.core.util.errors import InputError
 
 Network = CenterBoxNet | QNet | DenseNet
 

@@ -31,12 +31,12 @@ import tempfile
 import cv2
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.backends import export_onnx
 from bbpose_ros.core.inference.int8_graphs import (file_sha256, INPUT_NAMES, INT8_FORMAT,
                                                    int8_kind, OUTPUT_NAMES)
 from bbpose_ros.core.inference.weights import load_network
 from bbpose_ros.core.pipeline.rotation_estimator import run_network
+from bbpose_ros.core.util.errors import InputError
 
 # Q-Net calibration crops: boxes jittered as a detector's (per-side error / box size, as
 # Q-Net trains), fed in batches of this size.

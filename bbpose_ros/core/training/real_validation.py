@@ -30,9 +30,8 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.eval.detection import score_detections
-from bbpose_ros.core.eval.evaluation import score_instance, summarize_objects
+from bbpose_ros.core.eval.instance_scores import score_instance, summarize_objects
 from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.geometry.dense_pnp import pose_from_dense_maps
 from bbpose_ros.core.inference.backends import TorchRunner
@@ -46,6 +45,7 @@ from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.pipeline.rotation_estimator import QNetRotationEstimator
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.training.dense_training import maps_to_numpy, mask_iou
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame

@@ -35,7 +35,6 @@ from typing import Any, TYPE_CHECKING
 
 import torch
 
-from bbpose_ros.core.errors import InputError
 from bbpose_ros.core.inference.weights import save_weights
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
 from bbpose_ros.core.nets.detector import CenterBoxNet, DetectorConfig
@@ -50,6 +49,7 @@ from bbpose_ros.core.training.loop import run_loop, RunLog
 from bbpose_ros.core.training.qnet_training import qnet_step, qnet_validation, QNetBatches
 from bbpose_ros.core.training.verifier_training import (CandidateCrops, verifier_step,
                                                         verifier_validation, VerifierBatches)
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 
 if TYPE_CHECKING:

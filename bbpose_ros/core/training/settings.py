@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 
 AUGMENT_STYLES = ('basic', 'strong')
 

@@ -29,7 +29,7 @@ import resource
 import time
 from typing import Any
 
-from bbpose_ros.core.errors import InputError
+from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
 
 

@@ -12,4 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Helpers no concern folder owns (a leaf): atomic file outputs, a newest-wins hand-off."""
+"""Helpers no concern folder owns (a leaf): InputError, atomic outputs, a newest-wins hand-off."""
