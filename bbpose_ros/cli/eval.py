@@ -88,8 +88,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              'built from the frames up to it (causal) or from the whole scene '
                              '(final). Each BOP scene is one static scene; its '
                              'scene_camera.json must hold the camera poses (cam_R_w2c, '
-                             'cam_t_w2c: bbpose static-scenes writes them). The map reads images and camera '
-                             'poses, never the ground truth (default %(default)s)')
+                             'cam_t_w2c: bbpose static-scenes writes them). The map reads '
+                             'images and camera poses, never the ground truth (default '
+                             '%(default)s)')
     parser.add_argument('--camera-noise', type=float_pair, default=None, metavar='MM,DEG',
                         help='with --fuse: add a TF-like error to each camera pose first (RMS '
                              'MM millimetres, DEG degrees; seeded by --seed): the sensitivity '
