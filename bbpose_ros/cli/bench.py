@@ -34,7 +34,7 @@ from std_msgs.msg import Header
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
-from bbpose_ros.cli.graph.graph_bench import camera_messages, run_graph
+from bbpose_ros.cli.graph.graph_bench import camera_messages, camera_transforms, run_graph
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
@@ -136,7 +136,7 @@ def bench_graph(args: argparse.Namespace, frames: Sequence[BopFrame],
     if args.rate <= 0 or args.duration <= 0:
         raise InputError('--rate and --duration must be positive')
     graph = run_graph(camera_messages(frames), list(values['objects']), args.params, overrides,
-                      args.rate, args.duration)
+                      args.rate, args.duration, camera_transforms(frames))
     report = summarize_graph(latencies_ms(graph.recording), len(graph.recording.published_s),
                              graph.node_start, graph.node_end, graph.node_counts,
                              graph.node_rss_trace, rate_hz=args.rate,

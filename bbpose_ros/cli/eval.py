@@ -28,8 +28,9 @@ from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
 from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
-from bbpose_ros.core.eval.evaluation import score_frames
-from bbpose_ros.core.eval.fusion import frame_camera_poses, FUSE_MODES
+from bbpose_ros.core.eval.evaluation import estimate_frames, score_poses
+from bbpose_ros.core.eval.fusion import format_map_tracks, frame_camera_poses, FUSE_MODES
+from bbpose_ros.core.eval.fusion import fused_poses, map_track_report
 from bbpose_ros.core.eval.instance_scores import InstanceScore, make_report
 from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.eval.tables import format_report
@@ -228,16 +229,24 @@ def run(args: argparse.Namespace) -> int:
     sweep = []
     for level in levels:
         perturb = None if level is None else (level[0], level[1] / 1000.0)
-        level_scores, timings = score_frames(
+        results = estimate_frames(
             frames, pipeline, boxes=args.boxes,
             rotation='gt' if args.rotation == 'gt' else 'estimator', min_visib=args.min_visib,
-            perturb=perturb, seed=args.seed, perturb_direction=args.perturb_direction,
-            fuse=args.fuse, camera_poses=camera_poses)
+            perturb=perturb, seed=args.seed, perturb_direction=args.perturb_direction)
+        poses, timings = [r.poses for r in results], [r.timings_ms for r in results]
+        if camera_poses is not None:
+            run = fused_poses(frames, poses, camera_poses, pipeline.models, pipeline.options,
+                              args.fuse)
+            poses = run.poses
+            timings = [dict(t, map=ms) for t, ms in zip(timings, run.map_ms)]
+        level_scores = score_poses(frames, poses, pipeline.models, args.min_visib)
         level_report = make_report(level_scores, timings, len(frames))
         if level is not None:
             sweep.append({'deg': level[0], 'mm': level[1], 'mean': level_report['mean']})
         if len(sweep) <= 1:
             report, scores = level_report, level_scores
+            if camera_poses is not None:
+                report['map'] = map_track_report(frames, camera_poses, run)
     if len(sweep) > 1:
         report['sweep'] = sweep
     detection = None
@@ -259,6 +268,8 @@ def run(args: argparse.Namespace) -> int:
                         'perturb_direction': args.perturb_direction, 'seed': args.seed,
                         'fuse': args.fuse, 'camera_noise_mm_deg': args.camera_noise}
     print(format_report(report))
+    if 'map' in report:
+        print(format_map_tracks(report['map']))
     for level in report.get('sweep', []):
         mean = level['mean']
         print(f'start {level["deg"]:g} deg / {level["mm"]:g} mm: 5cm5deg {mean["cm5deg5"]:.3f}, '

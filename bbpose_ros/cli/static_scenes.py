@@ -25,9 +25,8 @@ import numpy as np
 from tqdm import tqdm
 
 from bbpose_ros.cli.common import add_dataset_argument, float_pair
-from bbpose_ros.core.data.bop import BopDataset, read_json
-from bbpose_ros.core.eval.static_stretches import bop_camera_fields, camera_poses, noisy_pose
-from bbpose_ros.core.eval.static_stretches import static_stretches
+from bbpose_ros.core.data.bop import bop_camera_fields, BopDataset, read_json
+from bbpose_ros.core.eval.static_stretches import camera_poses, noisy_pose, static_stretches
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output
 

@@ -83,8 +83,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     path.add_argument('--bob', type=float, default=None,
                       help='metres the camera moves up and down, at 0.5 Hz (default '
                            f'{PATH_DEFAULTS["bob"]})')
+    path.add_argument('--move', type=_object_shift, default=None, metavar='OBJECT:DX,DY',
+                      help='from the middle of the path on, that target object stands moved '
+                           'by DX, DY metres on the table (a robot moved it between two '
+                           "looks: the map's test); every frame carries its exact camera "
+                           'pose either way')
     parser.set_defaults(func=run)
     return parser
+
+
+def _object_shift(text: str) -> tuple[str, tuple[float, float]]:
+    """Parse 'OBJECT:DX,DY' (an argparse type)."""
+    name, _, shift = text.partition(':')
+    try:
+        dx, dy = (float(value) for value in shift.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected OBJECT:DX,DY, got {text!r}')
+    return name, (dx, dy)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,6 +128,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f'--{name.replace("_", "-")} is for --camera-path')
         if getattr(args, name) is None:
             setattr(args, name, default)
+    if args.move is not None and (not args.camera_path or args.move[0] not in targets):
+        raise InputError(f'--move {args.move[0]}: needs --camera-path and one of the target '
+                         f'objects ({", ".join(targets)})')
     if args.scene_style == 'table':
         config = with_inplane_range(TableConfig(), args)
         scenes = TableScenes(target_models, camera, args.seed, config, distractors)
@@ -142,9 +160,14 @@ def _write(scenes, models, root, args, targets, distractors, config):
         path = orbit_path(scenes.camera_pose(0), args.count, args.rate, args.orbit_speed,
                           args.bob)
     for index in tqdm(range(args.count), desc='synth', unit='img'):
-        sample = scenes.sample(index) if path is None else \
-            scenes.sample_with_layout(0, path[index])[0]
-        writer.add(index, sample)
+        if path is None:
+            sample = scenes.sample(index)
+            writer.add(index, sample)
+        else:
+            moved = args.move is not None and index >= args.count // 2
+            sample = scenes.sample_with_layout(0, path[index],
+                                               dict([args.move]) if moved else None)[0]
+            writer.add(index, sample, path[index])
         if index < args.previews:
             write_rgb_png(root / 'previews' / f'{index:06d}.png', draw_preview(sample))
     writer.finish()
@@ -153,4 +176,7 @@ def _write(scenes, models, root, args, targets, distractors, config):
         'objects': targets,
         'distractor_objects': sorted(distractors), 'config': asdict(config),
         'camera_path': None if path is None else {
-            'rate_hz': args.rate, 'orbit_deg_per_s': args.orbit_speed, 'bob_m': args.bob}})
+            'rate_hz': args.rate, 'orbit_deg_per_s': args.orbit_speed, 'bob_m': args.bob,
+            'moved': None if args.move is None else {
+                'object': args.move[0], 'dx_dy_m': list(args.move[1]),
+                'from_frame': args.count // 2}}})

@@ -38,6 +38,7 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.bags import topics
@@ -68,6 +69,20 @@ def camera_messages(frames: Iterable[BopFrame]) -> list[tuple[Image, CameraInfo]
             for frame in frames]
 
 
+def camera_transforms(frames: Iterable[BopFrame]) -> list[TFMessage | None]:
+    """
+    Make each BopFrame's /tf message of its camera pose (world -> camera), as make-bag does.
+
+    None for a frame without a camera pose; the publisher restamps them with the images.
+    """
+    def message(pose):
+        return _to_rclpy(topics.transform_message(0, topics.FIXED_FRAME,
+                                                  topics.DEFAULT_FRAME_ID, pose),
+                         topics.TF_TYPE, TFMessage)
+    return [None if frame.world_from_camera is None else message(frame.world_from_camera)
+            for frame in frames]
+
+
 def _to_rclpy(message, msgtype, cls):
     """Turn a rosbags message into the rclpy message of class ``cls`` through its CDR bytes."""
     return deserialize_message(bytes(TYPESTORE.serialize_cdr(message, msgtype)), cls)
@@ -80,19 +95,29 @@ class CameraPublisher:
     Args:
         node: the rclpy Node that owns the publishers.
         pairs: list of (Image, CameraInfo), used in turn.
+        transforms: per pair, its camera's /tf message (``camera_transforms``) or None.
 
     """
 
-    def __init__(self, node: Node, pairs: Sequence[tuple[Image, CameraInfo]]) -> None:
+    def __init__(self, node: Node, pairs: Sequence[tuple[Image, CameraInfo]],
+                 transforms: Sequence[TFMessage | None] = ()) -> None:
         self.pairs = pairs
+        self.transforms = transforms
         self.image = node.create_publisher(Image, topics.IMAGE_TOPIC, PLAY_QOS)
         self.info = node.create_publisher(CameraInfo, topics.CAMERA_INFO_TOPIC, PLAY_QOS)
+        self.tf = node.create_publisher(TFMessage, topics.TF_TOPIC, 100) if any(
+            t is not None for t in transforms) else None
 
     def publish(self, index: int, stamp_ns: int) -> None:
-        """Publish pair ``index`` (modulo their number), both stamped ``stamp_ns``."""
+        """Publish pair ``index`` (modulo their number), its camera's TF first, stamped."""
         image, info = self.pairs[index % len(self.pairs)]
-        for message in (image, info):
-            message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
+        transform = self.transforms[index % len(self.pairs)] if self.tf is not None else None
+        headers = [image.header, info.header] + ([] if transform is None else
+                                                 [transform.transforms[0].header])
+        for header in headers:
+            header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
+        if transform is not None:
+            self.tf.publish(transform)
         self.image.publish(image)
         self.info.publish(info)
 
@@ -164,7 +189,7 @@ class GraphRun:
 
 def run_graph(pairs: Sequence[tuple[Image, CameraInfo]], objects: Iterable[str],
               params_file: Path | str, overrides: Sequence[str], rate_hz: float,
-              duration_s: float) -> GraphRun:
+              duration_s: float, transforms: Sequence[TFMessage | None] = ()) -> GraphRun:
     """
     Start the node, warm it up, publish at ``rate_hz`` for ``duration_s`` and stop it.
 
@@ -174,6 +199,8 @@ def run_graph(pairs: Sequence[tuple[Image, CameraInfo]], objects: Iterable[str],
         params_file, overrides: the node's parameters file and ``name:=value`` overrides.
         rate_hz: frames per second.
         duration_s: length of the timed run in seconds.
+        transforms: per pair, the /tf message of its camera pose, or None
+            (``camera_transforms``; a node with ``fixed_frame`` maps with them).
 
     Returns:
         A GraphRun.
@@ -184,7 +211,7 @@ def run_graph(pairs: Sequence[tuple[Image, CameraInfo]], objects: Iterable[str],
     node = Node('bbpose_bench')
     process = NodeProcess(params_file, overrides)
     try:
-        camera = CameraPublisher(node, pairs)
+        camera = CameraPublisher(node, pairs, transforms)
         recorder = Recorder(node, ())      # connection, warm-up answers and diagnostics
         clock = ArrivalClock(node, objects)
         baseline = _warm_up(camera, recorder, process)

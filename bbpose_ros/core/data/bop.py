@@ -167,6 +167,13 @@ def _camera_pose(record, scene_dir, image_id):
     return invert_rigid(rigid_matrix(rotation, translation))
 
 
+def bop_camera_fields(world_from_camera: np.ndarray) -> dict[str, list[float]]:
+    """Return BOP's ``cam_R_w2c`` (9,) and ``cam_t_w2c`` (3,) mm of a world_from_camera."""
+    camera_from_world = invert_rigid(world_from_camera)
+    return {'cam_R_w2c': camera_from_world[:3, :3].reshape(-1).tolist(),
+            'cam_t_w2c': (camera_from_world[:3, 3] / MM_TO_M).tolist()}
+
+
 def split_names(root: Path | str) -> list[str]:
     """Sorted names of a BOP folder's splits: its subfolders holding scene folders (NNNNNN)."""
     return sorted(path.name for path in Path(root).iterdir() if path.is_dir() and any(

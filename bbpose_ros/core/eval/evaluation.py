@@ -22,7 +22,7 @@ instances by ``matching``.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, TYPE_CHECKING
 
@@ -40,6 +40,7 @@ from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame, GroundTruthInstance
+    from bbpose_ros.core.data.models import ObjectModel
     from bbpose_ros.core.geometry.camera import CameraIntrinsics
 
 
@@ -59,18 +60,36 @@ def evaluate(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'g
 def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
                  rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True,
                  perturb: tuple[float, float] | None = None, seed: int = 0,
-                 perturb_direction: str = 'random', fuse: str = 'none',
-                 camera_poses: Sequence[np.ndarray] | None = None
+                 perturb_direction: str = 'random'
                  ) -> tuple[dict[str, list[InstanceScore]], list[dict[str, float]]]:
     """
     Run the pipeline over BOP frames and score every counted instance.
+
+    ``estimate_frames`` then ``score_poses``; the arguments are theirs.
+
+    Returns:
+        ({name: [InstanceScore]}, [per-frame stage timings in ms]).
+
+    """
+    results = estimate_frames(frames, pipeline, boxes, rotation, min_visib, progress,
+                              perturb, seed, perturb_direction)
+    return (score_poses(frames, [result.poses for result in results], pipeline.models,
+                        min_visib), [result.timings_ms for result in results])
+
+
+def estimate_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str = 'gt',
+                    rotation: str = 'gt', min_visib: float = 0.1, progress: bool = True,
+                    perturb: tuple[float, float] | None = None, seed: int = 0,
+                    perturb_direction: str = 'random') -> list[FrameResult]:
+    """
+    Run the pipeline (or its ground-truth oracles) over BOP frames; a FrameResult each.
 
     Args:
         frames: BopFrame list.
         pipeline: a PosePipeline whose ``models`` are the objects to evaluate.
         boxes: 'gt' (amodal ground-truth boxes of the counted instances) or 'detector'.
         rotation: 'gt' (ground-truth rotations of the matched instances) or 'estimator'.
-        min_visib: instances less visible than this are not counted.
+        min_visib: instances less visible than this are not counted (nor given as boxes).
         progress: show a progress bar on stderr.
         perturb: (degrees, metres): instead of the Bounding Box Equation, start each pose
             from its ground truth turned by that angle about a random axis and moved by that
@@ -80,33 +99,27 @@ def score_frames(frames: Sequence[BopFrame], pipeline: PosePipeline, boxes: str 
         perturb_direction: how the translation is moved, ``rotations.PERTURB_DIRECTIONS``:
             'random' (any direction) or 'ray' (along the viewing ray, as a box of the wrong
             size moves it).
-        fuse: 'none' scores each frame's own poses; 'causal' or 'final' the map of its
-            scene (``fusion.fused_poses``), built from ``camera_poses``.
-        camera_poses: with ``fuse``, each frame's (4, 4) world_from_camera.
-
-    Returns:
-        ({name: [InstanceScore]}, [per-frame stage timings in ms]).
 
     """
     if perturb is not None and (boxes != 'gt' or rotation != 'gt'):
         raise InputError('perturbing the ground truth needs ground-truth boxes and rotations')
     rng = np.random.default_rng(seed)
-    results = [_estimate_frame(pipeline, frame, _counted(frame, pipeline.models, min_visib),
-                               boxes, rotation, perturb, rng, perturb_direction)
-               for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress)]
-    poses = [result.poses for result in results]
-    if fuse != 'none':
-        from bbpose_ros.core.eval.fusion import fused_poses
-        poses = fused_poses(frames, poses, camera_poses, pipeline.models, pipeline.options,
-                            fuse)
-    scores = {name: [] for name in pipeline.models}
+    return [_estimate_frame(pipeline, frame, _counted(frame, pipeline.models, min_visib),
+                            boxes, rotation, perturb, rng, perturb_direction)
+            for frame in tqdm(frames, desc='evaluating', unit='frame', disable=not progress)]
+
+
+def score_poses(frames: Sequence[BopFrame], poses: Sequence[Sequence[PoseEstimate]],
+                models: Mapping[str, ObjectModel], min_visib: float = 0.1
+                ) -> dict[str, list[InstanceScore]]:
+    """Score each frame's poses (camera frame) against its counted instances, by object."""
+    scores = {name: [] for name in models}
     for frame, frame_poses in zip(frames, poses):
-        indices = _counted(frame, pipeline.models, min_visib)
+        indices = _counted(frame, models, min_visib)
         counted = [frame.instances[k] for k in indices]
-        for k, score in zip(indices, score_frame(pipeline.models, counted, frame_poses,
-                                                 frame.camera)):
+        for k, score in zip(indices, score_frame(models, counted, frame_poses, frame.camera)):
             scores[score.object_name].append(replace(score, key=instance_key(frame, k)))
-    return scores, [result.timings_ms for result in results]
+    return scores
 
 
 def _counted(frame, models, min_visib):

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
+from bbpose_ros.core.geometry.rigid import rigid_matrix
 from bbpose_ros.core.geometry.rotations import exp_so3
 
 if TYPE_CHECKING:
@@ -122,10 +122,3 @@ def noisy_pose(world_from_camera: np.ndarray, sigma_mm: float, sigma_deg: float,
     offset = rng.normal(scale=sigma_mm * 1e-3 / np.sqrt(3.0), size=3)
     turn = exp_so3(rng.normal(scale=np.deg2rad(sigma_deg) / np.sqrt(3.0), size=3))
     return rigid_matrix(world_from_camera[:3, :3] @ turn, world_from_camera[:3, 3] + offset)
-
-
-def bop_camera_fields(world_from_camera: np.ndarray) -> dict[str, list[float]]:
-    """Return BOP's ``cam_R_w2c`` (9,) and ``cam_t_w2c`` (3,) mm of a world_from_camera."""
-    camera_from_world = invert_rigid(world_from_camera)
-    return {'cam_R_w2c': camera_from_world[:3, :3].reshape(-1).tolist(),
-            'cam_t_w2c': (camera_from_world[:3, 3] * 1e3).tolist()}

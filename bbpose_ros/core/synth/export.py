@@ -30,9 +30,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bbpose_ros.core.data.bop import bop_camera_fields
 from bbpose_ros.core.data.models import MM_TO_M
 from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.geometry.rigid import invert_rigid
 from bbpose_ros.core.synth.scenes import SyntheticSample
 
 
@@ -80,8 +82,14 @@ class BopSceneWriter:
         (self.scene_dir / 'rgb').mkdir(parents=True)
         self.scene_gt, self.scene_camera, self.scene_gt_info = {}, {}, {}
 
-    def add(self, image_id: int, sample: SyntheticSample) -> None:
-        """Write sample ``image_id`` (int)'s image and masks and record its ground truth."""
+    def add(self, image_id: int, sample: SyntheticSample,
+            world_to_camera: np.ndarray | None = None) -> None:
+        """
+        Write sample ``image_id`` (int)'s image and masks and record its ground truth.
+
+        ``world_to_camera``: the (4, 4) camera pose it was rendered from (metres), written
+        as BOP's ``cam_R_w2c`` / ``cam_t_w2c`` (a camera path's frames carry it).
+        """
         (self.scene_dir / 'mask_visib').mkdir(exist_ok=True)
         infos = []
         for index, instance in enumerate(sample.instances):
@@ -94,6 +102,9 @@ class BopSceneWriter:
                           'visib_fract': float(instance.visib_fract),
                           'visible_box_uv': visible_box.tolist()})
         self.add_poses(image_id, sample.image_rgb, sample.camera, sample.instances, infos)
+        if world_to_camera is not None:
+            self.scene_camera[str(image_id)].update(
+                bop_camera_fields(invert_rigid(world_to_camera)))
 
     def add_poses(self, image_id: int, image_rgb: np.ndarray, camera: CameraIntrinsics,
                   poses: Sequence[Any], infos: Sequence[Mapping[str, Any]]) -> None:

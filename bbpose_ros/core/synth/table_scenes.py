@@ -48,7 +48,7 @@ from bbpose_ros.core.synth.scenes import checked_scene_inputs, scene_meshes, \
 from bbpose_ros.core.synth.stable_poses import load_stable_poses, StablePoses, yaw_rotation
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_layout import draw_camera_pose, in_disc, place_meshes, \
-    TableLayout
+    PlacedMesh, TableLayout
 from bbpose_ros.core.util.errors import InputError
 
 # Closest any mesh point may come to the camera plane (metres).
@@ -108,7 +108,8 @@ class TableScenes:
         """Render sample number ``index`` (a non-negative int) as a SyntheticSample."""
         return self.sample_with_layout(index)[0]
 
-    def sample_with_layout(self, index: int, world_to_camera: np.ndarray | None = None
+    def sample_with_layout(self, index: int, world_to_camera: np.ndarray | None = None,
+                           shifted: Mapping[str, tuple[float, float]] | None = None
                            ) -> tuple[SyntheticSample, TableLayout]:
         """
         Render sample ``index``; return it and its ``TableLayout``.
@@ -116,10 +117,17 @@ class TableScenes:
         ``world_to_camera``: a (4, 4) camera pose (table frame, metres) to see the scene
         from instead of the sample's own (``camera_pose``): the same table, objects, lights,
         textures and camera effects seen from elsewhere, e.g. along a ``camera_path``; no
-        wall then (a moving camera may pass where it stands).
+        wall then (a moving camera may pass where it stands). ``shifted``: {target object
+        name: (dx, dy) metres}: those objects moved on the table, the rest of the scene as
+        it was (a robot's object moved between two looks); what they then overlap is not
+        checked.
         """
         config = self.config
         rng, radius, placed, drawn = self._scene(index)
+        if shifted:
+            placed = [PlacedMesh(mesh.key, mesh.rotation, mesh.translation + [
+                *shifted.get(mesh.key.removeprefix('target/'), (0.0, 0.0)), 0.0])
+                if mesh.key.startswith('target/') else mesh for mesh in placed]
         moved = world_to_camera is not None
         world_to_camera = np.asarray(world_to_camera) if moved else drawn
         rotation_wc, translation_wc = world_to_camera[:3, :3], world_to_camera[:3, 3]
