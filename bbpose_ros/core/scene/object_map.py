@@ -112,6 +112,7 @@ class _Entry:
         self.agree = np.zeros((0, 0), dtype=bool)
         self.fused: FusedPose | None = None
         self.seen_ns = 0
+        self.pending: list[list[ViewedPose]] = []   # disagreeing views in a row
 
     @property
     def candidates(self) -> list[ViewedPose]:
@@ -128,17 +129,52 @@ class _Entry:
 
         A view from where the newest was taken (rays within ``map_keyframe_deg``) that
         agrees with the fused pose adds nothing but the time it was seen; one that
-        disagrees replaces the newest (a moved object shows so to a still camera).
+        disagrees replaces the newest. ``map_move_views`` views in a row, each from a ray
+        ``map_keyframe_deg`` or more from the one before (a still camera's frames share
+        their errors), whose positions disagree with the fused one and agree with each
+        other, mean the object was moved: the entry starts afresh from them.
         """
         new = _stack(view)
+        if self._moved(view, new):
+            return
         if self.views and _ray_angle_deg(self.views[-1][0], view[0]) < \
                 self.options.map_keyframe_deg:
-            fused = self.fused
-            as_stacked = (fused.rotation[None], fused.translation[None], fused.covariance[None])
-            if self._agreement(_first(new), as_stacked)[0, 0]:
+            if self._agreement(_first(new), self._fused_stacked())[0, 0]:
                 self.seen_ns = max(self.seen_ns, view[0].stamp_ns)
                 return
             self._drop(len(self.views) - 1)
+        self._append(view, new)
+        self._refit()
+
+    def _fused_stacked(self):
+        fused = self.fused
+        return fused.rotation[None], fused.translation[None], fused.covariance[None]
+
+    def _moved(self, view, new):
+        """Count views in a row placing the object elsewhere; at ``map_move_views``: True."""
+        if self.fused is None or self._same_place(_first(new), self._fused_stacked())[0, 0]:
+            self.pending = []
+            return False
+        if self.pending and _ray_angle_deg(self.pending[-1][0], view[0]) < \
+                self.options.map_keyframe_deg:
+            return False
+        if self.pending and not self._same_place(
+                _first(new), _stack([v[0] for v in self.pending])).all():
+            self.pending = []
+        self.pending.append(view)
+        if len(self.pending) < self.options.map_move_views:
+            return False
+        pending, self.pending = self.pending, []
+        while self.views:
+            self._drop(0)
+        self.fused = None
+        for kept in pending:
+            self._append(kept, _stack(kept))
+        self._refit()
+        return True
+
+    def _append(self, view, new):
+        """Keep a view's candidates: the window's oldest view goes when it is full."""
         if len(self.views) == self.options.map_window:
             self._drop(0)
         old = len(self.agree)
@@ -150,16 +186,18 @@ class _Entry:
         self.agree = agree
         self.stacked = tuple(np.concatenate([old, part]) for old, part in zip(self.stacked, new))
         self.views.append(view)
-        self._refit()
-        self._restart_if_moved()
-        self.seen_ns = max([self.seen_ns] + [c.stamp_ns for c in self.inlier_candidates()])
 
     def _agreement(self, a, b):
         return agreement(*a[:3], *b[:3], self.symmetries, self.options.map_gate_deg)
 
+    def _same_place(self, a, b):
+        """Return (A, B) bool: whether the positions agree, whatever the rotations."""
+        return agreement(*a[:3], *b[:3], self.symmetries, 180.0)
+
     def _refit(self):
         self.fused = fuse_views(*self.stacked, self.agree, self.symmetries,
-                                self.options.map_gate_deg, self.tolerance)
+                                self.options.map_gate_deg, self.tolerance, self.fused)
+        self.seen_ns = max([self.seen_ns] + [c.stamp_ns for c in self.inlier_candidates()])
 
     def _drop(self, index):
         start = sum(len(v) for v in self.views[:index])
@@ -168,19 +206,6 @@ class _Entry:
         self.agree = self.agree[keep][:, keep]
         self.stacked = tuple(part[keep] for part in self.stacked)
         del self.views[index]
-
-    def _restart_if_moved(self):
-        """Drop the older views where the newest agree with each other, not with the map."""
-        count = self.options.map_move_views
-        recent = self.views[-count:]
-        if len(recent) < count or len(self.views) == count:
-            return
-        seen_recently = {c.view for c in self.inlier_candidates()} & {v[0].view for v in recent}
-        chosen = _stack([v[0] for v in recent])
-        if not seen_recently and self._agreement(chosen, chosen).all():
-            while len(self.views) > count:
-                self._drop(0)
-            self._refit()
 
 
 def _stack(candidates):
