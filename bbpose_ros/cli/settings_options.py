@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Command-line options generated from declared settings (``core/util/settings.py``).
+Command-line options generated from declared settings (``core/util/declarations.py``).
 
 Each setting ``name`` becomes ``--name-with-dashes`` with its type, choices and description
 (a bool: ``--name`` / ``--no-name``; a tuple: ``W,H``), defaulting to None: an option not
@@ -30,8 +30,8 @@ import argparse
 from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
+from bbpose_ros.core.util.declarations import declared
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.settings import declared
 
 Settings = TypeVar('Settings')
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from bbpose_ros.core.adaptation.teacher import TeacherPose
 from bbpose_ros.core.geometry.boxes import box_iou
-from bbpose_ros.core.util.settings import check_settings, setting
+from bbpose_ros.core.util.declarations import check_settings, setting
 
 VERDICTS = ('accepted', 'detection', 'confidence', 'box', 'consistency')
 # Frames two objects must share before their centre distance is judged.
@@ -62,7 +62,7 @@ class SelectionSettings:
     """
     The gates of ``select_labels`` (recorded in ``report.json``).
 
-    Each field is a setting (``util.settings``), described in its declaration and checked
+    Each field is a setting (``util.declarations``), described in its declaration and checked
     when the object is made.
     """
 

@@ -21,7 +21,7 @@ description live here and nowhere else. The node's parameter descriptors
 (``ros/params.py``), the ``bbpose eval`` / ``bbpose bench`` options
 (``cli/settings_options.py``) and config/bbpose.yaml (``cli/config_file.py``, ``make
 config``) are generated from ``SETTINGS``, declared as every settings class is
-(``util.settings``). A PipelineOptions checks itself when it is made (``check_settings``:
+(``util.declarations``). A PipelineOptions checks itself when it is made (``check_settings``:
 each field, then the combinations), so a value is checked once, wherever it comes from.
 
 The stages take the PipelineOptions itself and read their settings from it by these names
@@ -37,8 +37,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bbpose_ros.core.util.declarations import check_settings, declared, setting
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.settings import check_settings, declared, setting
 
 
 POSE_SOURCES = ('qnet', 'dense', 'dense+qnet')

@@ -54,8 +54,8 @@ from bbpose_ros.core.training.loop import cosine_lr
 from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
+from bbpose_ros.core.util.declarations import check_settings, setting
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.settings import check_settings, setting
 
 Network = CenterBoxNet | QNet | DenseNet
 
@@ -115,7 +115,7 @@ class RowTraining:
     """
     How the new rows learn (recorded in the weight file).
 
-    Each field is a setting (``util.settings``), described in its declaration and checked
+    Each field is a setting (``util.declarations``), described in its declaration and checked
     when the object is made. Rows fitted to renders carry to real frames with a spread from
     run to run that averaging over ``seeds`` narrows.
     """

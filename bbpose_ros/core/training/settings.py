@@ -20,7 +20,7 @@ visibility floor, held-out share, augmentation), ``TrunkTrainSettings`` adds the
 rate of the three networks that start from ImageNet, and each stage's class adds its own
 settings and sets its defaults of the shared ones (``stage_settings``). Each field is one
 setting under one name from the ``bbpose train`` option (``--name-with-dashes``, generated
-by ``cli/settings_options.py`` from the declarations, ``util.settings``) to the weight
+by ``cli/settings_options.py`` from the declarations, ``util.declarations``) to the weight
 file's ``training.settings`` record: its type, default, range or choices and a one-line
 description live here and nowhere else. A settings object checks its values when it is made
 (``check_settings``), wherever they come from.
@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from bbpose_ros.core.util.settings import check_settings, setting
+from bbpose_ros.core.util.declarations import check_settings, setting
 
 AUGMENT_STYLES = ('basic', 'strong')
 
