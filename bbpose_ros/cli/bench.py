@@ -36,14 +36,15 @@ from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_dataset_argument, add_objects_argument
 from bbpose_ros.cli.graph.graph_bench import camera_messages, camera_transforms, run_graph
 from bbpose_ros.cli.graph.replay import DEFAULT_PARAMS
-from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, settings_of
+from bbpose_ros.cli.settings_options import (add_settings_options, PIPELINE_TITLE,
+                                             settings_given)
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.data.compressed_image import decode_compressed, DEFAULT_JPEG_QUALITY
 from bbpose_ros.core.data.compressed_image import encode_compressed
 from bbpose_ros.core.eval.benchmark import benchmark_frames, rss_settle_s, STAGES
 from bbpose_ros.core.eval.benchmark import summarize_graph
 from bbpose_ros.core.eval.recorded_poses import latencies_ms
-from bbpose_ros.core.inference.options import SETTINGS
+from bbpose_ros.core.inference.options import PipelineOptions, SETTINGS
 from bbpose_ros.core.pipeline.tracking import PoseTracker
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
@@ -89,7 +90,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='override one node parameter (repeatable)')
     parser.add_argument('--json', type=Path, default=None, help='write the report here')
     # Unset, each takes the parameters file's value.
-    add_settings_arguments(parser, SETTINGS, defaults={})
+    add_settings_options(parser, PipelineOptions, PIPELINE_TITLE)
     parser.set_defaults(func=run)
 
 
@@ -99,7 +100,7 @@ def node_overrides(args: argparse.Namespace) -> list[str]:
     if args.objects:
         overrides.append(f'objects:=[{",".join(args.objects)}]')
     overrides += [f'{name}:={value!r}' if isinstance(value, str) else f'{name}:={value}'
-                  for name, value in settings_of(args, SETTINGS).items()]
+                  for name, value in settings_given(args, SETTINGS).items()]
     return overrides + list(args.param)
 
 

@@ -25,7 +25,8 @@ from typing import Any, TYPE_CHECKING
 from bbpose_ros.cli.common import (add_blocks_argument, add_dataset_argument,
                                    add_frames_argument, add_objects_argument, float_pair,
                                    in_blocks)
-from bbpose_ros.cli.pipeline_arguments import add_settings_arguments, options_of
+from bbpose_ros.cli.settings_options import (add_settings_options, PIPELINE_TITLE,
+                                             settings_made)
 from bbpose_ros.core.data.bop import BopDataset, BopFrame
 from bbpose_ros.core.eval.detection import format_detection_report, score_detections
 from bbpose_ros.core.eval.evaluation import estimate_frames, score_poses
@@ -35,7 +36,7 @@ from bbpose_ros.core.eval.instance_scores import InstanceScore, make_report
 from bbpose_ros.core.eval.paired import write_instances
 from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.geometry.rotations import PERTURB_DIRECTIONS
-from bbpose_ros.core.inference.options import SETTINGS
+from bbpose_ros.core.inference.options import PipelineOptions, SETTINGS
 from bbpose_ros.core.pipeline.loader import load_pipeline, StagesGiven, WeightFiles
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import write_json_atomic
@@ -116,7 +117,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--skip-adapted', action='store_true',
                         help='leave out the frames the weights adapted on (bbpose adapt); '
                              'without it, scoring them is refused')
-    add_settings_arguments(parser, EVAL_SETTINGS, defaults={})
+    add_settings_options(parser, PipelineOptions, PIPELINE_TITLE, names=EVAL_SETTINGS)
     parser.set_defaults(func=run)
 
 
@@ -132,8 +133,8 @@ def build_pipeline(models: Mapping[str, ObjectModel], args: argparse.Namespace,
     ``params`` are the node parameter values of ``--params`` ({} without it), ``weights``
     the files ``weight_files`` chose.
     """
-    options = options_of(args, EVAL_SETTINGS,
-                         {name: params[name] for name in EVAL_SETTINGS if name in params})
+    options = settings_made(PipelineOptions, args,
+                            {name: params[name] for name in EVAL_SETTINGS if name in params})
     return load_pipeline(models, options, weights,
                          StagesGiven(boxes=args.boxes == 'gt', rotations=args.rotation == 'gt'))
 

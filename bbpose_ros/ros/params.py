@@ -42,7 +42,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 
 from bbpose_ros.core.data.models import LMO_OBJECTS
-from bbpose_ros.core.inference.options import PipelineOptions, Setting, SETTINGS
+from bbpose_ros.core.inference.options import PipelineOptions, SETTINGS
+from bbpose_ros.core.util.declarations import Setting
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.param_specs import check_dataset_dir, check_object_names, check_tf_prefix
 from bbpose_ros.ros.param_specs import check_weights_file, dataset_path, one_of, ParameterSpec

@@ -15,35 +15,36 @@
 """
 The options the ``bbpose train`` stages share, and what their values turn into.
 
-A stage's training settings (``core/training/settings.py``) become its options here
-(``add_settings_options``): each setting ``name`` is ``--name-with-dashes`` with its type,
-range, choices and description (a bool: ``--name`` / ``--no-name``), and
-``settings_from`` makes the stage's settings of the options given.
+A stage's training settings (``core/training/settings.py``) become its options by the
+one generator of options from declared settings (``cli/settings_options.py``:
+``add_settings_options`` with ``TRAINING_TITLE``, ``settings_made``).
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import fields
 import os
 from pathlib import Path
-from typing import Any, TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 from bbpose_ros.cli.common import (add_dataset_argument, add_objects_argument, float_pair,
                                    with_inplane_range)
+from bbpose_ros.cli.settings_options import add_settings_options, int_tuple, TRAINING_TITLE
 from bbpose_ros.core.nets.efficientnet_lite import BACKBONES
-from bbpose_ros.core.nets.qnet import QNetConfig
+from bbpose_ros.core.nets.qnet import QNetConfig, ROTATION_TARGETS, SHARING_MODES
+from bbpose_ros.core.synth.config import STORED_CROP_SIZE
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.training.device import DEVICES
-from bbpose_ros.core.training.settings import declared, QNetTrainSettings, TrainSettings
+from bbpose_ros.core.training.settings import QNetTrainSettings
 from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.training.runs import TrainingRun
 
-QNET_CHANNELS = QNetConfig.__dataclass_fields__['channels'].default
+# Q-Net's architecture options default to QNetConfig's own values.
+QNET_DEFAULTS = {field.name: field.default for field in fields(QNetConfig)}
 DEFAULT_CACHE = Path(os.environ.get('BBPOSE_CACHE', Path.home() / '.cache/bbpose/train'))
-
-Settings = TypeVar('Settings', bound=TrainSettings)
 
 
 def add_common_options(parser: argparse.ArgumentParser) -> None:
@@ -83,60 +84,12 @@ def add_input_size_option(parser: argparse.ArgumentParser) -> None:
 
 def add_crop_options(parser: argparse.ArgumentParser) -> None:
     """Add ``--crop-size``, ``--context`` and ``--box-sigma`` of a crop cache."""
-    parser.add_argument('--crop-size', type=int, default=64,
+    parser.add_argument('--crop-size', type=int, default=STORED_CROP_SIZE,
                         help='stored crop side (Q-Net resizes to its own)')
     parser.add_argument('--context', type=float, default=1.2,
                         help="crop side / longest box side (Q-Net's context)")
     parser.add_argument('--box-sigma', type=float, default=0.06,
                         help='box jitter: per-side error / box size')
-
-
-def add_settings_options(parser: argparse.ArgumentParser, settings_class: type) -> None:
-    """
-    Add one option per setting of ``settings_class`` (a stage's TrainSettings class).
-
-    Each defaults to None: not given, the setting keeps the stage's default (in the help);
-    ``settings_from`` makes the settings of those given.
-    """
-    group = parser.add_argument_group('training settings (recorded in the weight file)')
-    for name, setting in declared(settings_class).items():
-        text = f'{setting.description} (default {_spelled(setting.default)})'
-        text = text.replace('%', '%%')
-        flag = f'--{name.replace("_", "-")}'
-        if setting.kind is bool:
-            group.add_argument(flag, dest=name, default=None,
-                               action=argparse.BooleanOptionalAction, help=text)
-        elif setting.kind is tuple:
-            group.add_argument(flag, dest=name, default=None, type=int_tuple,
-                               metavar=setting.metavar, help=text)
-        else:
-            group.add_argument(flag, dest=name, default=None, type=setting.kind,
-                               choices=setting.choices, help=text)
-
-
-def _spelled(value: Any) -> str:
-    """Spell a setting's value as its option takes it: 0.001, true, 192,160, none."""
-    if value is None or isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, tuple):
-        return ','.join(map(str, value))
-    return f'{value:g}' if isinstance(value, float) else str(value)
-
-
-def settings_from(args: argparse.Namespace, settings_class: type[Settings],
-                  **given: Any) -> Settings:
-    """
-    Return the ``settings_class`` of the settings options given, and ``given`` ({name: value}).
-
-    Raises InputError '--option-name: reason' for a value it does not take.
-    """
-    values = {name: getattr(args, name) for name in declared(settings_class)
-              if getattr(args, name, None) is not None}
-    try:
-        return settings_class(**{**values, **given})
-    except InputError as err:      # 'name: reason'
-        name, _, reason = str(err).partition(': ')
-        raise InputError(f'--{name.replace("_", "-")}: {reason}') from err
 
 
 def training_run(args: argparse.Namespace) -> TrainingRun:
@@ -191,18 +144,21 @@ def add_table_options(parser: argparse.ArgumentParser) -> None:
 
 def add_qnet_options(parser: argparse.ArgumentParser) -> None:
     """Add Q-Net's architecture, caches, validation and training settings options."""
-    parser.add_argument('--crop-size', type=int, default=48, help='crop side (paper: 48)')
-    parser.add_argument('--rotation-target', choices=('egocentric', 'allocentric'),
-                        default='egocentric', help='regressed rotation (paper: egocentric)')
-    parser.add_argument('--sharing', choices=('shared', 'per_object'), default='shared',
+    parser.add_argument('--crop-size', type=int, default=QNET_DEFAULTS['crop_size'],
+                        help='crop side (paper: 48)')
+    parser.add_argument('--rotation-target', choices=ROTATION_TARGETS,
+                        default=QNET_DEFAULTS['rotation_target'],
+                        help='regressed rotation (paper: egocentric)')
+    parser.add_argument('--sharing', choices=SHARING_MODES, default=QNET_DEFAULTS['sharing'],
                         help='one trunk with per-object heads, or one network per object')
-    parser.add_argument('--channels', type=int_tuple, default=QNET_CHANNELS,
+    parser.add_argument('--channels', type=int_tuple, default=QNET_DEFAULTS['channels'],
                         help='widths of the conv + max-pool stages, comma separated '
                              '(default %(default)s)')
-    parser.add_argument('--first-stride', type=int, choices=(1, 2), default=1,
+    parser.add_argument('--first-stride', type=int, choices=(1, 2),
+                        default=QNET_DEFAULTS['first_stride'],
                         help='stride of the first convolution: 1 (paper), or 2 in place of '
-                             'the first max-pool (default 1)')
-    parser.add_argument('--hypotheses', type=int, default=1,
+                             'the first max-pool (default %(default)s)')
+    parser.add_argument('--hypotheses', type=int, default=QNET_DEFAULTS['hypotheses'],
                         help='quaternions per head, trained winner-takes-all, the best-scored '
                              'one is the output (paper: 1)')
     parser.add_argument('--box-sigma-from', type=Path, default=None,
@@ -212,7 +168,7 @@ def add_qnet_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--real-val', action='store_true',
                         help="also validate on the dataset's real frames with ground-truth "
                              'boxes (measured only, never trained on)')
-    add_settings_options(parser, QNetTrainSettings)
+    add_settings_options(parser, QNetTrainSettings, TRAINING_TITLE, show_defaults=True)
 
 
 def add_extra_cache_option(parser: argparse.ArgumentParser, kind: str) -> None:
@@ -220,14 +176,6 @@ def add_extra_cache_option(parser: argparse.ArgumentParser, kind: str) -> None:
     parser.add_argument('--extra-cache', type=Path, nargs='+', default=(), metavar='DIR',
                         help=f'more {kind} caches to train on, with the same objects, camera '
                              f'and sizes as --cache')
-
-
-def int_tuple(text: str) -> tuple[int, ...]:
-    """Parse '1,2,3' into a tuple of integers (an argparse type)."""
-    try:
-        return tuple(int(x) for x in text.split(','))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected comma-separated integers, got {text!r}')
 
 
 def table_config(args: argparse.Namespace) -> TableConfig:

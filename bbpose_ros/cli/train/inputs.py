@@ -21,7 +21,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bbpose_ros.cli.train.arguments import settings_from
+from bbpose_ros.cli.settings_options import settings_made
 from bbpose_ros.core.training.settings import QNetTrainSettings
 from bbpose_ros.core.util.errors import InputError
 
@@ -97,7 +97,7 @@ def qnet_setup(args: argparse.Namespace) -> tuple[
         raise InputError(f'--hypotheses must be at least 1, got {args.hypotheses}')
     measured = None if args.box_sigma_from is None else _measured_sigma(args.box_sigma_from)
     given = {} if measured is None or args.box_sigma is not None else {'box_sigma': measured}
-    settings = settings_from(args, QNetTrainSettings, **given)
+    settings = settings_made(QNetTrainSettings, args, **given)
     cache, models = load_cache(args)
     try:
         config = QNetConfig(tuple(models), crop_size=args.crop_size, channels=args.channels,

@@ -16,9 +16,10 @@
 
 import argparse
 
+from bbpose_ros.cli.settings_options import add_settings_options, settings_made, TRAINING_TITLE
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
                                             add_extra_cache_option, add_init_option,
-                                            add_settings_options, settings_from, training_run)
+                                            training_run)
 from bbpose_ros.cli.train.inputs import init_network
 from bbpose_ros.core.training.settings import DenseTrainSettings
 from bbpose_ros.core.util.errors import InputError
@@ -44,7 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="also score the real frames of --dataset's test split at every "
                             'checkpoint (ground-truth boxes, PnP poses, mask IoU); they are '
                             'never trained on')
-    add_settings_options(dense, DenseTrainSettings)
+    add_settings_options(dense, DenseTrainSettings, TRAINING_TITLE, show_defaults=True)
     dense.set_defaults(func=run)
 
 
@@ -55,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.training.crop_cache import CropCache
     from bbpose_ros.core.training.runs import train_dense
     training = training_run(args)
-    settings = settings_from(args, DenseTrainSettings)
+    settings = settings_made(DenseTrainSettings, args)
     cache = CropCache([args.cache, *args.extra_cache], args.max_shards)
     models = load_bop_models(args.dataset, args.objects or cache.objects)
     try:

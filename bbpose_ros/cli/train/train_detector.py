@@ -16,10 +16,11 @@
 
 import argparse
 
+from bbpose_ros.cli.settings_options import (add_settings_options, int_tuple,
+                                             settings_made, TRAINING_TITLE)
 from bbpose_ros.cli.train.arguments import (add_backbone_option, add_budget_options,
                                             add_common_options, add_extra_cache_option,
-                                            add_init_option, add_settings_options, int_tuple,
-                                            settings_from, training_run)
+                                            add_init_option, training_run)
 from bbpose_ros.cli.train.inputs import init_network, load_cache
 from bbpose_ros.core.training.settings import DetectorTrainSettings
 from bbpose_ros.core.util.errors import InputError
@@ -38,7 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help='input size recorded in the --export copy, multiples of 16: the '
                              'detector is fully convolutional and may run at another size '
                              "than the cache's (default: the cache's)")
-    add_settings_options(parser, DetectorTrainSettings)
+    add_settings_options(parser, DetectorTrainSettings, TRAINING_TITLE, show_defaults=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             side <= 0 or side % 16 for side in export_size)):
         raise InputError('--export-input-size needs --export and W,H in multiples of 16, got '
                          f'{export_size}')
-    settings = settings_from(args, DetectorTrainSettings, train_crop=tuple(window))
+    settings = settings_made(DetectorTrainSettings, args, train_crop=tuple(window))
     train_detector(cache, config, settings, training,
                    export_input_size=None if export_size is None else tuple(export_size),
                    init=init_network(args, 'detector', models))

@@ -17,9 +17,10 @@
 import argparse
 from pathlib import Path
 
+from bbpose_ros.cli.settings_options import (add_settings_options, int_tuple,
+                                             settings_made, TRAINING_TITLE)
 from bbpose_ros.cli.train.arguments import (add_budget_options, add_common_options,
-                                            add_extra_cache_option, add_settings_options,
-                                            int_tuple, settings_from, training_run)
+                                            add_extra_cache_option, training_run)
 from bbpose_ros.core.training.settings import VerifierTrainSettings
 from bbpose_ros.core.util.errors import InputError
 
@@ -46,7 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     verifier.add_argument('--real-val', action='store_true',
                           help="also measure the detector's recall on the dataset's real "
                                'frames (measured only, never trained on)')
-    add_settings_options(verifier, VerifierTrainSettings)
+    add_settings_options(verifier, VerifierTrainSettings, TRAINING_TITLE, show_defaults=True)
     verifier.set_defaults(func=run)
 
 
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if len(args.channels) != 4:
         raise InputError(f'--channels needs 4 widths, got {len(args.channels)}')
     training = training_run(args)
-    settings = settings_from(args, VerifierTrainSettings)
+    settings = settings_made(VerifierTrainSettings, args)
     detector = load_network(args.detector_weights, 'detector')
     cache = TrainingCache([args.cache, *args.extra_cache], args.max_shards)
     if tuple(cache.input_size) != tuple(detector.config.input_size):

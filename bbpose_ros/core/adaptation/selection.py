@@ -45,11 +45,16 @@ import numpy as np
 
 from bbpose_ros.core.adaptation.teacher import TeacherPose
 from bbpose_ros.core.geometry.boxes import box_iou
-from bbpose_ros.core.util.errors import InputError
+from bbpose_ros.core.util.declarations import check_settings, setting
 
 VERDICTS = ('accepted', 'detection', 'confidence', 'box', 'consistency')
 # Frames two objects must share before their centre distance is judged.
 MIN_PAIR_FRAMES = 3
+
+
+def _above_zero(share: float) -> str | None:
+    """Return why ``share`` is no share above 0, or None."""
+    return None if share > 0.0 else f'{share} is out of range (0, 1]'
 
 
 @dataclass(frozen=True)
@@ -57,31 +62,26 @@ class SelectionSettings:
     """
     The gates of ``select_labels`` (recorded in ``report.json``).
 
-    Attributes:
-        min_detection_score: lowest detector score of a label (0..1).
-        keep: share of each object's poses over the recording a round keeps (0..1], by
-            confidence.
-        min_confidence: lowest refinement score of a label whatever ``keep`` (0..1).
-        min_box_iou: lowest IoU between the detector's box and the pose's projected box.
-        consistency_mm: largest change of a centre distance across frames, millimetres;
-            0: no consistency gate.
-
+    Each field is a setting (``util.declarations``), described in its declaration and checked
+    when the object is made.
     """
 
-    min_detection_score: float = 0.3
-    keep: float = 0.5
-    min_confidence: float = 0.6
-    min_box_iou: float = 0.5
-    consistency_mm: float = 60.0
+    min_detection_score: float = setting(
+        0.3, 'Lowest detector score of a label.', low=0.0, high=1.0)
+    keep: float = setting(
+        0.5, "Share of each object's poses over the recording a round keeps, by confidence "
+        '(above 0).', low=0.0, high=1.0, check=_above_zero)
+    min_confidence: float = setting(
+        0.6, 'Lowest refinement score of a label whatever keep.', low=0.0, high=1.0)
+    min_box_iou: float = setting(
+        0.5, "Lowest IoU between the detector's box and the pose's projected box.",
+        low=0.0, high=1.0)
+    consistency_mm: float = setting(
+        60.0, 'Largest change of a centre distance across frames, millimetres; 0: no '
+        'consistency gate.', low=0.0)
 
     def __post_init__(self) -> None:
-        for name in ('min_detection_score', 'min_confidence', 'min_box_iou'):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise InputError(f'{name} must lie in 0..1, got {getattr(self, name)}')
-        if not 0.0 < self.keep <= 1.0:
-            raise InputError(f'keep must lie in (0, 1], got {self.keep}')
-        if self.consistency_mm < 0.0:
-            raise InputError(f'consistency_mm must be >= 0, got {self.consistency_mm}')
+        check_settings(self)
 
 
 @dataclass(frozen=True)

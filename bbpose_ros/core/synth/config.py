@@ -18,6 +18,9 @@ from dataclasses import asdict, dataclass
 
 from bbpose_ros.core.util.errors import InputError
 
+# Side of a crop cache's stored crops in pixels (Q-Net resizes them to its own input).
+STORED_CROP_SIZE = 64
+
 
 @dataclass(frozen=True)
 class SynthConfig:

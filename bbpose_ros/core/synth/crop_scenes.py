@@ -44,7 +44,7 @@ from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.nets.crops import FILL_VALUE, square_boxes
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds, random_background
-from bbpose_ros.core.synth.config import SynthConfig
+from bbpose_ros.core.synth.config import STORED_CROP_SIZE, SynthConfig
 from bbpose_ros.core.synth.dense_targets import dense_targets
 from bbpose_ros.core.synth.effects import apply_camera_effects
 from bbpose_ros.core.synth.placement import pose_at_pixel, random_allocentric_rotation, \
@@ -143,8 +143,9 @@ class CropScenes:
     def __init__(self, models: Mapping[str, ObjectModel], camera: CameraIntrinsics,
                  seed: int = 0, config: SynthConfig | None = None,
                  distractor_models: Mapping[str, ObjectModel] | None = None,
-                 crop_size: int = 64, context: float = 1.2, box_sigma: float = 0.05,
-                 min_visib: float = 0.15, neighbours: tuple[int, int] = (0, 4),
+                 crop_size: int = STORED_CROP_SIZE, context: float = 1.2,
+                 box_sigma: float = 0.05, min_visib: float = 0.15,
+                 neighbours: tuple[int, int] = (0, 4),
                  backgrounds: PhotoBackgrounds | None = None, dense_size: int = 0) -> None:
         if not models:
             raise InputError('crop scenes need at least one target object model')

@@ -37,6 +37,7 @@ from bbpose_ros.core.geometry.dense_grid import model_box
 from bbpose_ros.core.nets.crops import extract_crops, square_boxes
 from bbpose_ros.core.render import Lighting, MeshRenderer
 from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
+from bbpose_ros.core.synth.config import STORED_CROP_SIZE
 from bbpose_ros.core.synth.crop_scenes import checked_dense_size, CropSample, in_frame_mask
 from bbpose_ros.core.synth.dense_targets import dense_targets
 from bbpose_ros.core.synth.table_config import TableConfig
@@ -70,7 +71,8 @@ class TableCrops:
     def __init__(self, models: Mapping[str, ObjectModel], camera: CameraIntrinsics,
                  seed: int = 0, config: TableConfig | None = None,
                  distractor_models: Mapping[str, ObjectModel] | None = None,
-                 backgrounds: PhotoBackgrounds | None = None, crop_size: int = 64,
+                 backgrounds: PhotoBackgrounds | None = None,
+                 crop_size: int = STORED_CROP_SIZE,
                  context: float = 1.2, box_sigma: float = 0.05, min_visib: float = 0.15,
                  dense_size: int = 0, stable_pose_cache: Path | str | None = None) -> None:
         self.dense_size = checked_dense_size(dense_size, crop_size)

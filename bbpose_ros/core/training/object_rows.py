@@ -54,6 +54,7 @@ from bbpose_ros.core.training.loop import cosine_lr
 from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
+from bbpose_ros.core.util.declarations import check_settings, setting
 from bbpose_ros.core.util.errors import InputError
 
 Network = CenterBoxNet | QNet | DenseNet
@@ -114,29 +115,24 @@ class RowTraining:
     """
     How the new rows learn (recorded in the weight file).
 
-    Attributes:
-        steps: Adam steps on the cached features (cosine rate, ``warmup`` steps of warm-up).
-        batch: cached inputs per step.
-        lr: peak learning rate.
-        passes: augmented copies of each training input whose features are cached.
-        warmup: warm-up steps of the rate.
-        seeds: independent runs from the same start on the same cached features, each
-            with its own batch draws; the new rows are their average. Rows fitted to
-            renders carry to real frames with a spread from run to run that averaging
-            narrows.
-
+    Each field is a setting (``util.declarations``), described in its declaration and checked
+    when the object is made. Rows fitted to renders carry to real frames with a spread from
+    run to run that averaging over ``seeds`` narrows.
     """
 
-    steps: int = 2000
-    batch: int = 32
-    lr: float = 1e-2
-    passes: int = 2
-    warmup: int = 100
-    seeds: int = 1
+    steps: int = setting(
+        2000, 'Adam steps on the cached features (cosine rate, warmup steps of warm-up).')
+    batch: int = setting(32, 'Cached inputs per step.')
+    lr: float = setting(1e-2, 'Peak learning rate.')
+    passes: int = setting(
+        2, 'Augmented copies of each training input whose features are cached.')
+    warmup: int = setting(100, 'Warm-up steps of the rate.')
+    seeds: int = setting(
+        1, 'Independent runs from the same start on the same cached features, each with its '
+        'own batch draws; the new rows are their average.', low=1)
 
     def __post_init__(self) -> None:
-        if self.seeds < 1:
-            raise InputError(f'row training needs at least one seed, got {self.seeds}')
+        check_settings(self)
 
 
 class _RowTask:

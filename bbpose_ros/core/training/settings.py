@@ -20,12 +20,12 @@ visibility floor, held-out share, augmentation), ``TrunkTrainSettings`` adds the
 rate of the three networks that start from ImageNet, and each stage's class adds its own
 settings and sets its defaults of the shared ones (``stage_settings``). Each field is one
 setting under one name from the ``bbpose train`` option (``--name-with-dashes``, generated
-from ``declared`` by ``cli/train/arguments.py``) to the weight file's ``training.settings``
-record: its type, default, range or choices and a one-line description live here and
-nowhere else. A settings object checks its values when it is made (``check_setting``),
-wherever they come from.
+by ``cli/settings_options.py`` from the declarations, ``util.declarations``) to the weight
+file's ``training.settings`` record: its type, default, range or choices and a one-line
+description live here and nowhere else. A settings object checks its values when it is made
+(``check_settings``), wherever they come from.
 
-A leaf module: it imports nothing but the errors, so the ``bbpose train`` parsers load
+A leaf module: it imports nothing but ``util``, so the ``bbpose train`` parsers load
 without torch.
 """
 
@@ -35,29 +35,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from bbpose_ros.core.util.errors import InputError
+from bbpose_ros.core.util.declarations import check_settings, setting
 
 AUGMENT_STYLES = ('basic', 'strong')
-
-
-def setting(default: Any, description: str, *, low: float | None = None,
-            high: float | None = None, choices: tuple[str, ...] | None = None,
-            metavar: str | None = None) -> Any:
-    """
-    Make a dataclass field of one setting.
-
-    Args:
-        default: the value a run takes when none is given.
-        description: one line, with units.
-        low: the inclusive lower bound (None: unbounded).
-        high: the inclusive upper bound (None: unbounded).
-        choices: the values a str setting takes.
-        metavar: how a tuple value is spelled, e.g. 'W,H'.
-
-    """
-    return field(default=default, metadata={
-        'description': description, 'range': (low, high), 'choices': choices,
-        'metavar': metavar})
 
 
 @dataclass
@@ -91,8 +71,7 @@ class TrainSettings:
         1.0, "Scale of the augmentation's perturbations and probabilities; 0: none.", low=0.0)
 
     def __post_init__(self) -> None:
-        for name, declaration in declared(type(self)).items():
-            check_setting(declaration, getattr(self, name))
+        check_settings(self)
 
 
 @dataclass
@@ -182,76 +161,3 @@ class VerifierTrainSettings(TrainSettings):
     box_weight: float = setting(
         5.0, "Weight of the smooth L1 of the positives' side corrections beside the "
         'cross-entropy.', low=0.0)
-
-
-@dataclass(frozen=True)
-class TrainSetting:
-    """
-    One setting of a settings class as the generators see it.
-
-    Attributes:
-        name: the field's name, also (dashed) the ``bbpose train`` option's.
-        kind: the Python type of its values: bool, int, float, str or tuple (of ints).
-        default: the stage's value.
-        description: one line, with units.
-        limits: inclusive (low, high), either None where unbounded.
-        choices: the values a str setting takes, or None.
-        optional: whether None is a value (it means what the description says).
-        metavar: how a tuple value is spelled, or None.
-
-    """
-
-    name: str
-    kind: type
-    default: Any
-    description: str
-    limits: tuple[float | None, float | None]
-    choices: tuple[str, ...] | None
-    optional: bool
-    metavar: str | None
-
-
-_TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str, 'tuple[int, int]': tuple}
-
-
-def declared(settings_class: type) -> dict[str, TrainSetting]:
-    """Return {name: TrainSetting} of a settings class (or object), in the record's order."""
-    result = {}
-    for declaration in fields(settings_class):
-        kind, _, none = declaration.type.partition(' | ')
-        metadata = declaration.metadata
-        result[declaration.name] = TrainSetting(
-            declaration.name, _TYPES[kind], declaration.default, metadata['description'],
-            metadata['range'], metadata['choices'], none == 'None', metadata['metavar'])
-    return result
-
-
-def check_setting(declaration: TrainSetting, value: Any) -> None:
-    """Raise InputError 'name: reason' when ``value`` is not one ``declaration`` takes."""
-    name, expected = declaration.name, declaration.kind
-    if value is None and declaration.optional:
-        return
-    if expected is tuple:
-        parts = tuple(value) if isinstance(value, (tuple, list)) else ()
-        accepted = len(parts) == len(declaration.default) and all(
-            isinstance(part, int) and not isinstance(part, bool) for part in parts)
-        values = parts
-    else:
-        # bool is an int in Python; an int is a fine float; neither is accepted the other way.
-        accepted = isinstance(value, expected) and not (
-            expected is not bool and isinstance(value, bool))
-        if expected is float:
-            accepted = isinstance(value, (int, float)) and not isinstance(value, bool)
-        values = (value,)
-    if not accepted and expected is tuple:
-        raise InputError(f'{name}: {value!r} is not {len(declaration.default)} integers '
-                         f'({declaration.metavar})')
-    if not accepted:
-        raise InputError(f'{name}: {value!r} is not of type {expected.__name__}')
-    low, high = declaration.limits
-    for part in values:
-        if (low is not None and part < low) or (high is not None and part > high):
-            shown = f'>= {low}' if high is None else f'in [{low}, {high}]'
-            raise InputError(f'{name}: {part} is out of range ({shown})')
-    if declaration.choices is not None and value not in declaration.choices:
-        raise InputError(f'{name}: "{value}" is not one of {", ".join(declaration.choices)}')
