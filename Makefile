@@ -156,6 +156,33 @@ stream-check: setup
 			$(STREAM_OUT)/$${bag}_stream.json --json docs/reports/stream_$${bag}_compare.json; \
 	done
 
+# The scene map on the dev frames (docs/results.md#the-map-of-the-scene): the frames as static
+# scenes with camera poses derived from their annotations plus a TF-like error (2 mm / 0.2 deg,
+# then 5 mm / 0.5 deg), scored frame by frame, with the map built up to each frame (causal)
+# and after each scene (final), paired; then a rendered 30 Hz orbit with one object moved
+# half-way, for the map's stability.
+MAP_OUT ?= $(OUT)/map_check
+.PHONY: map-check
+map-check: setup
+	@rm -rf $(MAP_OUT); mkdir -p $(MAP_OUT)
+	$(BIN)/bbpose static-scenes --dataset $(DATASET) --camera-noise 2,0.2 --out $(MAP_OUT)/scenes
+	$(BIN)/bbpose static-scenes --dataset $(DATASET) --camera-noise 5,0.5 --out $(MAP_OUT)/scenes_5mm
+	@set -e; for fuse in none causal final; do \
+		$(BIN)/bbpose eval --dataset $(MAP_OUT)/scenes --fuse $$fuse --json docs/reports/map_$$fuse.json; \
+	done; \
+	for fuse in causal final; do \
+		$(BIN)/bbpose eval --dataset $(MAP_OUT)/scenes_5mm --fuse $$fuse \
+			--json docs/reports/map_$${fuse}_5mm.json; \
+		$(BIN)/bbpose compare docs/reports/map_none.json docs/reports/map_$$fuse.json --objects \
+			--json docs/reports/map_compare_$$fuse.json; \
+		$(BIN)/bbpose compare docs/reports/map_none.json docs/reports/map_$${fuse}_5mm.json \
+			--objects --json docs/reports/map_compare_$${fuse}_5mm.json; \
+	done
+	$(BIN)/bbpose synth --dataset $(DATASET) --scene-style table --camera-path --count 300 \
+		--seed 5 --previews 4 --move duck:0.06,0.03 --out $(MAP_OUT)/orbit
+	$(BIN)/bbpose eval --dataset $(MAP_OUT)/orbit --split train_synth --fuse causal \
+		--json docs/reports/map_orbit.json
+
 # Background photographs for training renders (`bbpose train render --backgrounds`):
 # Debian's wallpaper packages, unpacked outside the repository (once).
 CACHE ?= $(HOME)/.cache/bbpose

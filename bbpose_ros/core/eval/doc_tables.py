@@ -64,6 +64,10 @@ REPORT_COMMANDS = {
     # Paced replays, per-frame against stream mode (the Makefile's stream-check target).
     **{f'stream_{bag}_{run}': 'make stream-check' for bag in ('path', 'dev')
        for run in ('perframe', 'stream', 'compare')},
+    # The scene map on the dev frames as static scenes (the Makefile's map-check target).
+    **dict.fromkeys(('map_none', 'map_causal', 'map_final', 'map_causal_5mm', 'map_final_5mm',
+                     'map_compare_causal', 'map_compare_final', 'map_compare_causal_5mm',
+                     'map_compare_final_5mm', 'map_orbit'), 'make map-check'),
     # bbpose adapt's two-fold block protocol (the Makefile's adapt-check target).
     'adapt_compare': 'make adapt-check',
     'adapt_labels_135': 'make adapt-check',
@@ -78,6 +82,24 @@ _TRANSLATION = Column('translation median (mm)', ('mean.te_median_mm',), '{:.0f}
 _ADD = Column('ADD(-S)', ('mean.add_s_recall',))
 _CM5DEG5 = Column('5 cm / 5 deg', ('mean.cm5deg5',))
 _PROJ = Column('2D projection 5 px', ('mean.proj5px',))
+
+_MAP_RUNS = (
+    ('each frame alone (`--fuse none`)', 'map_none'),
+    ('the map up to each frame (`--fuse causal`)', 'map_causal'),
+    ('the map after each scene (`--fuse final`)', 'map_final'),
+    ('causal, camera error 5 mm / 0.5 deg', 'map_causal_5mm'),
+    ('final, camera error 5 mm / 0.5 deg', 'map_final_5mm'),
+)
+
+
+def _paired_columns(arm: str) -> tuple[Column, ...]:
+    """Return a comparison's difference and interval per figure (``arm``: B - A's name)."""
+    figures = (('found', 'found'), ('ADD(-S)', 'add_s'), ('5 cm / 5 deg', 'cm5deg5'),
+               ('proj 5 px', 'proj5px'))
+    return tuple(column for title, key in figures for column in (
+        Column(f'{title}: {arm}', (f'{{o}}.{key}.diff',), '{:+.3f}'),
+        Column('95 % interval', (f'{{o}}.{key}.low', f'{{o}}.{key}.high'), '{:+.3f}')))
+
 
 _RUNS = (
     ('detector boxes, Q-Net, refined (the defaults)', 'eval_detector'),
@@ -185,16 +207,46 @@ TABLES = {
     'results_gt_norefine': ObjectsTable('docs/results.md', 'eval_gt_norefine', _PER_OBJECT),
     'results_bbox_equation': ObjectsTable('docs/results.md', 'eval_gt_gt_norefine',
                                           _PER_OBJECT),
+    'readme_map': RunsTable(
+        'README.md', (_ADD, _CM5DEG5, _PROJ, _TRANSLATION), _MAP_RUNS[:3]),
+    # docs/results.md: the map of the scene
+    'results_map': RunsTable(
+        'docs/results.md',
+        (_ROTATION, _TRANSLATION, _ADD, _CM5DEG5, _PROJ,
+         Column('map, ms a frame: median / p95', ('timing_ms.map.median', 'timing_ms.map.p95'),
+                '{:.1f}')), _MAP_RUNS),
+    'results_map_causal': ObjectsTable(
+        'docs/results.md', 'map_compare_causal', _paired_columns('causal - frame'),
+        last=('figures', '**all instances**'), tool='bbpose compare'),
+    'results_map_final': ObjectsTable(
+        'docs/results.md', 'map_compare_final', _paired_columns('final - frame'),
+        last=('figures', '**all instances**'), tool='bbpose compare'),
+    'results_map_noise': RunsTable(
+        'docs/results.md',
+        tuple(column for title, key in (('ADD(-S)', 'add_s'), ('5 cm / 5 deg', 'cm5deg5'))
+              for column in (Column(f'{title}: map - frame', (f'figures.{key}.diff',),
+                                    '{:+.3f}'),
+                             Column('95 % interval', (f'figures.{key}.low',
+                                                      f'figures.{key}.high'), '{:+.3f}'))),
+        (('causal, 2 mm / 0.2 deg', 'map_compare_causal'),
+         ('causal, 5 mm / 0.5 deg', 'map_compare_causal_5mm'),
+         ('final, 2 mm / 0.2 deg', 'map_compare_final'),
+         ('final, 5 mm / 0.5 deg', 'map_compare_final_5mm')),
+        first='camera error (TF)', tool='bbpose compare'),
+    'results_map_orbit': ListTable(
+        'docs/results.md', 'map_orbit', 'map.stability', Column('object', ('object',), '{}'),
+        (Column('frames', ('frames',), '{:.0f}'),
+         Column('spread of the position (RMS, mm)', ('translation_mm',), '{:.2f}'),
+         Column('spread of the rotation (RMS, deg)', ('rotation_deg',), '{:.2f}'))),
+    'results_map_moves': ListTable(
+        'docs/results.md', 'map_orbit', 'map.moves', Column('object moved', ('object',), '{}'),
+        (Column('at image', ('image_id',), '{:.0f}'),
+         Column('frames until the map holds the new place', ('frames_to_follow',), '{:.0f}'))),
     # docs/training.md: bbpose adapt, adapted against shipped, paired over both folds
     'training_adapt_paired': ObjectsTable(
         'docs/training.md', 'adapt_compare',
         (Column('ADD(-S): shipped / adapted', ('{o}.add_s.a', '{o}.add_s.b')),)
-        + tuple(column for title, key in (('found', 'found'), ('ADD(-S)', 'add_s'),
-                                          ('5 cm / 5 deg', 'cm5deg5'), ('proj 5 px', 'proj5px'))
-                for column in (Column(f'{title}: adapted - shipped', (f'{{o}}.{key}.diff',),
-                                      '{:+.3f}'),
-                               Column('95 % interval', (f'{{o}}.{key}.low', f'{{o}}.{key}.high'),
-                                      '{:+.3f}'))),
+        + _paired_columns('adapted - shipped'),
         last=('figures', '**all instances**'), tool='bbpose compare'),
     'training_adapt_labels': RunsTable(
         'docs/training.md',

@@ -165,11 +165,13 @@ class PipelineOptions:
         30, 'Most views of an object the map fuses (the newest).', low=1, high=1000)
     map_keyframe_deg: float = setting(
         2.0, "A view whose ray to an object is within this of the object's newest view's "
-        '(the camera hardly moved) replaces that view in the map instead of joining it: '
-        'views from one place share their depth error, degrees.', low=0.0, high=90.0)
+        '(the camera hardly moved) adds nothing to the map where it agrees with it, and '
+        'replaces that view where not: views from one place share their depth error, '
+        'degrees.', low=0.0, high=90.0)
     map_move_views: int = setting(
-        3, 'An object is moved when this many of its newest views agree with each other and '
-        'not with the map: its older views are dropped.', low=1, high=100)
+        3, 'An object was moved when this many views in a row, each from a ray '
+        'map_keyframe_deg from the one before, place it elsewhere and agree with each '
+        'other: the map starts it afresh from them.', low=1, high=100)
     inference_backend: str = setting(
         'onnxruntime', 'What runs the networks: onnxruntime (CPU only) or torch (CPU or GPU).',
         choices=BACKENDS)
