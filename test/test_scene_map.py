@@ -202,3 +202,15 @@ def test_alternatives_let_the_views_agree_on_a_rotation_none_chose(lmo_models):
     (ape,) = scene_map.objects()
     angle = Rotation.from_matrix(ape.rotation.T @ OBJECT_IN_WORLD[:3, :3]).magnitude()
     assert ape.views == 3 and np.degrees(angle) < 0.5
+
+
+def test_a_pose_with_nan_is_left_out_and_the_map_goes_on(lmo_models):
+    scene_map = ObjectMap(lmo_models, PipelineOptions())
+    camera = looking_at_origin(0)
+    bad = seen_from(camera)
+    bad = dataclasses.replace(bad, rotation=np.full((3, 3), np.nan))
+    add(scene_map, camera, [bad, seen_from(camera, name='can')])
+    assert [o.object_name for o in scene_map.objects()] == ['can']
+    other = looking_at_origin(40)
+    add(scene_map, other, [seen_from(other)])
+    assert sorted(o.object_name for o in scene_map.objects()) == ['ape', 'can']

@@ -247,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
         if len(sweep) <= 1:
             report, scores = level_report, level_scores
             if camera_poses is not None:
-                report['map'] = map_track_report(frames, camera_poses, run)
+                # The truth carried into the world by the poses without the added error.
+                report['map'] = map_track_report(frames, frame_camera_poses(frames), run)
     if len(sweep) > 1:
         report['sweep'] = sweep
     detection = None

@@ -42,7 +42,8 @@ from bbpose_ros.core.pipeline.latency import timing_summary
 # each logged as a warning (values warnings_<kind>).
 DROPS = ('superseded', 'unpaired', 'bad_image', 'bad_camera_info', 'stamp_repeated', 'failed')
 WARNINGS = ('stamp_backwards', 'stamp_future', 'frame_id_empty', 'frame_id_mismatch',
-            'qos_incompatible', 'parameters_refused', 'map_no_transform', 'map_bad_transform')
+            'qos_incompatible', 'parameters_refused', 'map_no_transform', 'map_bad_transform',
+            'map_failed')
 COUNTERS = ('received', 'answered', 'mapped') + DROPS + WARNINGS
 _SUFFIX = '_ms_'
 

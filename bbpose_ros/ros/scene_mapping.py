@@ -151,6 +151,8 @@ class SceneMapping:
 
     def unsubscribe(self) -> None:
         """Stop listening to TF (deactivate); the map is kept."""
+        if self._tf2 is not None:
+            self._tf2[1].unregister()
         for subscription in self._subscriptions:
             self._node.destroy_subscription(subscription)
         self._subscriptions, self._buffer, self._tf2 = [], None, None
@@ -180,12 +182,18 @@ class SceneMapping:
                                 f'{header.frame_id or "(empty frame_id)"}: {err}; the frame '
                                 'is answered without it')
             return False
-        options = pipeline.pipeline.options
-        with self._lock:
-            if self._map is None or self._map.options != options:
-                self._map = ObjectMap(pipeline.pipeline.models, options)
-            self._map.add_view(stamp_ns, world_from_camera, camera, poses)
-            objects = self._map.objects()
+        options, models = pipeline.pipeline.options, pipeline.pipeline.models
+        try:
+            with self._lock:
+                if self._map is None or self._map.options != options or \
+                        self._map.models is not models:     # a rebuild: new settings, objects
+                    self._map = ObjectMap(models, options)
+                self._map.add_view(stamp_ns, world_from_camera, camera, poses)
+                objects = self._map.objects()
+        except Exception as err:  # noqa: B902 - the frame is answered; the map goes on
+            self._problems.warn('map_failed', type(err).__name__,
+                                f'the map could not take the frame: {type(err).__name__}: {err}')
+            return False
         self._publish(Header(stamp=header.stamp, frame_id=self.fixed_frame), objects,
                       stamp_ns, pipeline)
         return True
@@ -195,8 +203,11 @@ class SceneMapping:
         if not frame_id:
             raise InputError('the image has no frame_id')
         if self._tf2 is not None:
-            stamped = self._tf2[0].lookup_transform(self.fixed_frame, frame_id, header.stamp,
-                                                    Duration(seconds=TF_WAIT_S))
+            try:
+                stamped = self._tf2[0].lookup_transform(self.fixed_frame, frame_id,
+                                                        header.stamp, Duration(seconds=TF_WAIT_S))
+            except tf2_ros.TransformException as err:
+                raise TransformUnavailable(str(err)) from err
             t, q = stamped.transform.translation, stamped.transform.rotation
             return rigid_matrix(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])),
                                 [t.x, t.y, t.z])
@@ -208,8 +219,11 @@ class SceneMapping:
                 with self._lock:
                     return self._buffer.lookup(self.fixed_frame, frame_id,
                                                stamp_to_ns(header.stamp))
-            except TransformUnavailable:
-                if time.monotonic() > deadline:
+            except TransformUnavailable as err:
+                # Only data still to come is waited for: a frame TF has not seen yet, or a
+                # stamp past its newest transform; not two trees or a stamp in the past.
+                late = 'future' in str(err) or 'not in the TF tree' in str(err)
+                if not late or time.monotonic() > deadline:
                     raise
             time.sleep(TF_POLL_S)
 

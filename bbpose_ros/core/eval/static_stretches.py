@@ -37,6 +37,7 @@ import numpy as np
 
 from bbpose_ros.core.geometry.rigid import rigid_matrix
 from bbpose_ros.core.geometry.rotations import exp_so3
+from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
@@ -95,8 +96,10 @@ def camera_poses(stretch: Sequence[BopFrame],
     objects with a model count).
     """
     def corners(frame):
+        once = _centres(frame)          # objects with one instance: no pairing to guess
         return {i.obj_id: i.rotation @ models[i.object_name].box_corners.T
-                + i.translation[:, None] for i in frame.instances if i.object_name in models}
+                + i.translation[:, None] for i in frame.instances
+                if i.object_name in models and i.obj_id in once}
 
     world = corners(stretch[0])
     poses = []
@@ -104,8 +107,8 @@ def camera_poses(stretch: Sequence[BopFrame],
         seen = corners(frame)
         common = sorted(set(world) & set(seen))
         if not common:
-            poses.append(np.eye(4))
-            continue
+            raise InputError(f'scene {frame.scene_id} image {frame.image_id} shares no '
+                             "modelled object with its scene's first frame: no camera pose")
         poses.append(_kabsch(np.hstack([seen[k] for k in common]).T,
                              np.hstack([world[k] for k in common]).T))
     return poses

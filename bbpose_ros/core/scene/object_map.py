@@ -262,10 +262,11 @@ class ObjectMap:
         self._view_count += 1
         for pose in _most_confident(poses, self.models):
             name = pose.object_name
-            entry = self._entries.setdefault(name, _Entry(self.models[name], self.options))
+            entry = self._entries.get(name) or _Entry(self.models[name], self.options)
             entry.add([view_in_world(name, view, stamp_ns, world_from_camera, rotation,
                                      translation, weight, focal, self.options)
                        for rotation, translation, weight in _candidates(pose)])
+            self._entries[name] = entry         # kept once it holds a fused pose
         return view
 
     def objects(self) -> list[MapObject]:
@@ -340,7 +341,7 @@ def _candidates(pose):
     return [(pose.rotation, pose.translation, pose.confidence)] + [
         (rotation, translation, ALTERNATIVE_WEIGHT * score)
         for rotation, translation, score in pose.alternatives
-        if np.all(np.isfinite(translation))]
+        if _finite(rotation, translation, score)]
 
 
 def _most_confident(poses, models):
@@ -348,10 +349,16 @@ def _most_confident(poses, models):
     best = {}
     for pose in poses:
         name = pose.object_name
-        if name in models and np.all(np.isfinite(pose.translation)) and (
+        if name in models and _finite(pose.rotation, pose.translation, pose.confidence) and (
                 name not in best or pose.confidence > best[name].confidence):
             best[name] = pose
     return list(best.values())
+
+
+def _finite(rotation, translation, confidence):
+    """Tell whether a pose and its confidence are all finite numbers."""
+    return bool(np.all(np.isfinite(rotation)) and np.all(np.isfinite(translation))
+                and np.isfinite(confidence))
 
 
 def _box_in_image(model, camera, rotation, translation):
