@@ -204,7 +204,7 @@ def _consensus(rotations, translations, covariances, weights, groups, agree, sym
         rotation, translation, covariance = _fuse(rotations, translations, covariances,
                                                   weights, chosen, rotation, symmetry_r,
                                                   symmetry_t)
-    return rotation, translation, covariance, chosen
+    return rotation, translation, covariance, chosen, np.linalg.eigvalsh(covariance)[-1]
 
 
 def fuse_views(rotations: np.ndarray, translations: np.ndarray, covariances: np.ndarray,
@@ -223,13 +223,13 @@ def fuse_views(rotations: np.ndarray, translations: np.ndarray, covariances: np.
     """
     symmetry_r = np.ascontiguousarray(symmetries[:, :3, :3])
     symmetry_t = np.ascontiguousarray(symmetries[:, :3, 3])
-    rotation, translation, covariance, inliers = _consensus(
+    rotation, translation, covariance, inliers, worst_variance = _consensus(
         rotations, translations, covariances, weights, groups, agree, symmetry_r, symmetry_t,
         _min_trace(gate_deg), CHI2_3DOF_99)
     if previous is not None:
         s, _ = _closest_copy(previous.rotation, rotation, symmetry_r)
         rotation, translation = _aligned(rotation, translation, symmetry_r, symmetry_t, s)
-    worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(covariance)[-1]), 1e-12))
+    worst_sigma = math.sqrt(max(float(worst_variance), 1e-12))
     within = math.erf(tolerance_m / (math.sqrt(2.0) * worst_sigma))
     return FusedPose(rotation, translation, covariance, inliers,
                      float(np.mean(weights[inliers]) * within))

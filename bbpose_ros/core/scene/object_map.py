@@ -19,7 +19,7 @@ The map of a static scene: each object's pose in a fixed frame, fused over the v
 Each image comes with the camera's pose in the fixed frame (the robot's TF). Every pose
 the pipeline finds in it, with its other refined candidates (``PoseEstimate.alternatives``,
 weighed ``ALTERNATIVE_WEIGHT`` times less), becomes a ``ViewedPose`` there
-(``views.view_in_world``), and the object's last ``map_window`` views are fused by
+(``views.views_in_world``), and the object's last ``map_window`` views are fused by
 consensus (``consensus.fuse_views``): rays from different directions fix the depth one
 view cannot see, and the views choose among each other's candidates the rotation they
 share. An object is one entry per name (the image's most confident pose of it is taken,
@@ -48,7 +48,7 @@ from bbpose_ros.core.geometry.rigid import invert_rigid, is_rigid
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.consensus import agreement, fuse_views, FusedPose
-from bbpose_ros.core.scene.views import camera_covariance, ray_covariance, view_in_world
+from bbpose_ros.core.scene.views import camera_covariance, ray_covariance, views_in_world
 from bbpose_ros.core.scene.views import ViewedPose
 from bbpose_ros.core.util.errors import InputError
 
@@ -263,9 +263,8 @@ class ObjectMap:
         for pose in _most_confident(poses, self.models):
             name = pose.object_name
             entry = self._entries.get(name) or _Entry(self.models[name], self.options)
-            entry.add([view_in_world(name, view, stamp_ns, world_from_camera, rotation,
-                                     translation, weight, focal, self.options)
-                       for rotation, translation, weight in _candidates(pose)])
+            entry.add(views_in_world(name, view, stamp_ns, world_from_camera,
+                                     _candidates(pose), focal, self.options))
             self._entries[name] = entry         # kept once it holds a fused pose
         return view
 

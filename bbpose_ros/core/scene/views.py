@@ -30,6 +30,7 @@ says so.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
@@ -105,24 +106,40 @@ def camera_covariance(distance_m: float, options: PipelineOptions) -> float:
         (math.radians(options.map_camera_sigma_deg) * distance_m) ** 2
 
 
-def view_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera: np.ndarray,
-                  rotation_camera: np.ndarray, translation_camera: np.ndarray,
-                  confidence: float, focal_px: float,
-                  options: PipelineOptions) -> ViewedPose:
+@numba.njit(cache=True, nogil=True)
+def _world_covariances(rotation_wc, translations_camera, focal_px, depth_sigma,
+                       across_sigma_px, camera_m, camera_rad):
+    covariances = np.empty((translations_camera.shape[0], 3, 3))
+    for k in range(translations_camera.shape[0]):
+        t = translations_camera[k]
+        covariance = rotation_wc @ _ray_covariance(t, focal_px, depth_sigma, across_sigma_px) \
+            @ rotation_wc.T
+        variance = camera_m ** 2 + (camera_rad * math.sqrt(t @ t)) ** 2
+        for axis in range(3):
+            covariance[axis, axis] += variance
+        covariances[k] = covariance
+    return covariances
+
+
+def views_in_world(object_name: str, view: int, stamp_ns: int, world_from_camera: np.ndarray,
+                   poses: Sequence[tuple[np.ndarray, np.ndarray, float]], focal_px: float,
+                   options: PipelineOptions) -> list[ViewedPose]:
     """
-    Carry a pose from the camera frame into the fixed frame, with its covariance.
+    Carry one view's candidate poses from the camera frame into the fixed frame.
 
     ``world_from_camera``: (4, 4) the camera's pose in the fixed frame at the image's stamp;
-    ``rotation_camera`` (3, 3) and ``translation_camera`` (3,) metres: the model-to-camera
-    pose.
+    ``poses``: (rotation (3, 3), translation (3,) metres, confidence) model-to-camera. Each
+    covariance is the view's ray model (``ray_covariance``) turned into the fixed frame,
+    plus the camera's error (``camera_covariance``).
     """
-    rotation_wc, position = world_from_camera[:3, :3], world_from_camera[:3, 3]
-    translation_camera = np.asarray(translation_camera, dtype=float)
-    covariance = rotation_wc @ ray_covariance(translation_camera, focal_px, options) \
-        @ rotation_wc.T
-    variance = camera_covariance(math.sqrt(translation_camera @ translation_camera), options)
-    for axis in range(3):
-        covariance[axis, axis] += variance
-    return ViewedPose(object_name, view, stamp_ns, rotation_wc @ rotation_camera,
-                      rotation_wc @ translation_camera + position, covariance,
-                      position, float(confidence), translation_camera)
+    rotation_wc, position = world_from_camera[:3, :3], world_from_camera[:3, 3].copy()
+    translations = np.array([t for _, t, _ in poses], dtype=float).reshape(-1, 3)
+    covariances = _world_covariances(
+        np.ascontiguousarray(rotation_wc), translations, float(focal_px),
+        options.map_depth_sigma, options.map_across_sigma_px, options.map_camera_sigma_mm * MM,
+        math.radians(options.map_camera_sigma_deg))
+    return [ViewedPose(object_name, view, stamp_ns, rotation_wc @ rotation,
+                       rotation_wc @ translation + position, covariance, position,
+                       float(confidence), translation)
+            for (rotation, _, confidence), translation, covariance
+            in zip(poses, translations, covariances)]
