@@ -21,6 +21,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from bbpose_ros.core.adaptation.frames import RecordedFrame
+from bbpose_ros.core.adaptation.map_labels import mapped_teacher_poses
+from bbpose_ros.core.adaptation.teacher import TeacherPose
 from bbpose_ros.core.eval.static_stretches import camera_poses, noisy_pose, static_stretches
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.projection import projected_box_uv
@@ -214,3 +217,31 @@ def test_a_pose_with_nan_is_left_out_and_the_map_goes_on(lmo_models):
     other = looking_at_origin(40)
     add(scene_map, other, [seen_from(other)])
     assert sorted(o.object_name for o in scene_map.objects()) == ['ape', 'can']
+
+
+def test_adapt_labels_take_the_depth_the_views_agree_on(lmo_frames, lmo_models):
+    stretch = max(static_stretches(lmo_frames), key=len)
+    rng = np.random.default_rng(5)
+    frames, poses, truth = [], {}, {}
+    for frame, pose in zip(stretch, camera_poses(stretch, lmo_models)):
+        key = f'{frame.scene_id}/{frame.image_id}'
+        frames.append(RecordedFrame(key, frame.camera, frame.load_image,
+                                    noisy_pose(pose, 2.0, 0.2, rng), 'one'))
+        poses[key] = [TeacherPose(i.object_name, 0.9, i.box_uv, i.rotation,
+                                  i.translation * (1.0 + rng.choice([-1.0, 1.0]) * 0.04), 0.8,
+                                  i.box_uv) for i in frame.instances]
+        truth[key] = {i.object_name: i.translation for i in frame.instances}
+    frames.append(RecordedFrame('lone', stretch[0].camera, stretch[0].load_image))
+    poses['lone'] = poses[frames[0].key][:1]
+    mapped, moved = mapped_teacher_poses(frames, poses, lmo_models, PipelineOptions())
+    assert moved == sum(len(p) for key, p in poses.items() if key != 'lone')
+    assert mapped['lone'][0] is poses['lone'][0]            # no camera pose: unchanged
+    before = [np.linalg.norm(p.translation - truth[key][p.object_name])
+              for key, found in poses.items() if key != 'lone' for p in found]
+    after = [np.linalg.norm(p.translation - truth[key][p.object_name])
+             for key, found in mapped.items() if key != 'lone' for p in found]
+    assert np.median(after) < 0.5 * np.median(before)
+    first = mapped[frames[0].key][0]
+    assert np.allclose(first.box_uv, projected_box_uv(frames[0].camera,
+                                                      lmo_models[first.object_name].hull_points,
+                                                      first.rotation, first.translation))

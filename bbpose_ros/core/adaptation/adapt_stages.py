@@ -53,6 +53,7 @@ from tqdm import tqdm
 
 from bbpose_ros.core.adaptation.frames import image_fingerprint, RecordedFrame
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions, write_label_set
+from bbpose_ros.core.adaptation.map_labels import mapped_teacher_poses
 from bbpose_ros.core.adaptation.selection import (select_labels, SelectionSettings, Verdict,
                                                   verdict_counts)
 from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, HeadTraining)
@@ -198,13 +199,24 @@ class Adaptation:
         return replace(self.base, detector=folder / 'detector.pt', qnet=folder / 'qnet.pt')
 
     def _teach(self, folder, weights):
-        """Write ``teacher.json``: the careful pipeline's poses of every frame."""
+        """
+        Write ``teacher.json``: the careful pipeline's poses of every frame.
+
+        Where frames carry camera poses, the poses are the map's of their scene
+        (``map_labels``).
+        """
         teacher = Teacher(self.models, self.options, weights, self.settings.teacher_threshold)
         poses = {}
         for frame in tqdm(self.frames, desc='teacher', unit='frame',
                           disable=not self.progress):
-            poses[frame.key] = [p.record() for p in teacher(frame.read(), frame.camera)]
-        write_json_atomic(folder / 'teacher.json', poses)
+            poses[frame.key] = teacher(frame.read(), frame.camera)
+        if any(frame.world_from_camera is not None for frame in self.frames):
+            poses, moved = mapped_teacher_poses(self.frames, poses, self.models, self.options)
+            self.log(f'[teacher] the map of each scene gave {moved} of '
+                     f'{sum(len(p) for p in poses.values())} poses (frames with camera poses)')
+            self.report.setdefault('teacher_map', {})[folder.name] = moved
+        write_json_atomic(folder / 'teacher.json',
+                          {key: [p.record() for p in found] for key, found in poses.items()})
 
     def verdicts(self, number: int) -> dict[str, list[Verdict]]:
         """{frame key: [Verdict]} of round ``number``, as ``_select`` gave them."""

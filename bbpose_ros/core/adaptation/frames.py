@@ -43,12 +43,17 @@ class RecordedFrame:
         key: its name in the recording ('<scene_id>/<image_id>' or '<stamp_ns>').
         camera: CameraIntrinsics of the (rectified) image.
         read: returns the (H, W, 3) uint8 RGB image (read from disk or held in memory).
+        world_from_camera: (4, 4) the camera's pose in the recording's fixed frame (BOP's
+            ``cam_R_w2c`` / ``cam_t_w2c``, a bag's /tf), or None.
+        scene: the static scene the frame belongs to (its objects stay put), or None.
 
     """
 
     key: str
     camera: CameraIntrinsics
     read: Callable[[], np.ndarray]
+    world_from_camera: np.ndarray | None = None
+    scene: str | None = None
 
 
 def image_fingerprint(image_rgb: np.ndarray) -> str:
@@ -68,8 +73,8 @@ def dataset_frames(root: Path | str, split: str = 'test') -> list[RecordedFrame]
     frames = BopDataset(root, split).frames(ground_truth=False)
     if not frames:
         raise InputError(f'no images in {Path(root) / split}')
-    return [RecordedFrame(f'{f.scene_id}/{f.image_id}', f.camera, f.load_image)
-            for f in frames]
+    return [RecordedFrame(f'{f.scene_id}/{f.image_id}', f.camera, f.load_image,
+                          f.world_from_camera, str(f.scene_id)) for f in frames]
 
 
 def bag_frames(frames: Sequence, image_topic: str) -> list[RecordedFrame]:
@@ -86,4 +91,6 @@ def bag_frames(frames: Sequence, image_topic: str) -> list[RecordedFrame]:
     if missing:
         raise InputError(f'{len(missing)} image(s) on {image_topic} have no camera_info of '
                          f'the same stamp (first: {missing[0]} ns); record both topics')
-    return [RecordedFrame(str(f.stamp_ns), f.camera, lambda f=f: f.image_rgb) for f in frames]
+    return [RecordedFrame(str(f.stamp_ns), f.camera, lambda f=f: f.image_rgb,
+                          getattr(f, 'world_from_camera', None), getattr(f, 'scene', None))
+            for f in frames]
