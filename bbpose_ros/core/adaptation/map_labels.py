@@ -38,11 +38,8 @@ from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.geometry.projection import projected_box_uv
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
-from bbpose_ros.core.scene.object_map import ObjectMap
+from bbpose_ros.core.scene.object_map import FRAME_PERIOD_NS, ObjectMap
 from bbpose_ros.core.util.errors import InputError
-
-# The stamp a frame gets in the map: its place in the recording at a 30 Hz camera's period.
-FRAME_PERIOD_NS = 33_333_333
 
 
 def mapped_teacher_poses(frames: Sequence[RecordedFrame],

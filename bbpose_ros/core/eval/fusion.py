@@ -36,7 +36,7 @@ import numpy as np
 from bbpose_ros.core.geometry.rotations import log_so3, nearest_rotation
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.pipeline.poses import PoseEstimate
-from bbpose_ros.core.scene.object_map import MapObject, ObjectMap
+from bbpose_ros.core.scene.object_map import FRAME_PERIOD_NS, MapObject, ObjectMap
 from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -44,8 +44,6 @@ if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
 
 FUSE_MODES = ('none', 'causal', 'final')
-# The stamp a frame is given in the map: its image id at a 30 Hz camera's period.
-FRAME_PERIOD_NS = 33_333_333
 # The map's stability is its spread over an object's last this many frames.
 STABILITY_FRAMES = 100
 # A true position that jumps more than this between two frames: the object was moved.

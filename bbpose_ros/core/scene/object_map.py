@@ -58,6 +58,8 @@ if TYPE_CHECKING:
 # Tenths of the diameter: the translation error a map entry's confidence is the chance of
 # staying within (the ADD(-S) threshold).
 TOLERANCE_DIAMETERS = 0.1
+# The stamp step of frames without stamps (a BOP split, offline): a 30 Hz camera's period.
+FRAME_PERIOD_NS = 33_333_333
 # How much a pipeline's second choices (``PoseEstimate.alternatives``) weigh beside its
 # chosen pose: enough to win where other views agree with them, never alone.
 ALTERNATIVE_WEIGHT = 0.5
