@@ -96,18 +96,44 @@ def test_a_camera_path_makes_a_camera_rate_bag(egl, tmp_path, lmo_root):
                  '--orbit-speed', '30')
     assert args.func(args) == 0
     assert json.loads((out / 'synth_info.json').read_text())['camera_path'] == {
-        'rate_hz': 30.0, 'orbit_deg_per_s': 30.0, 'bob_m': 0.02}
+        'rate_hz': 30.0, 'orbit_deg_per_s': 30.0, 'bob_m': 0.02, 'moved': None}
     assert main(['make-bag', '--dataset', str(out), '--split', 'train_synth', '--rate', '30',
                  '--out', str(tmp_path / 'bag'), '--start-stamp', '5']) == 0
     frames = read_bag_frames(tmp_path / 'bag')
     assert np.allclose(np.diff([f.stamp_ns for f in frames]), 1e9 / 30, atol=1)
     assert all(f.ground_truth for f in frames)
+    # Each frame carries its exact camera pose: the objects stand still in the world.
+    rendered = BopDataset(out, split='train_synth').frames()
+    for frame, bag_frame in zip(rendered, frames):
+        assert np.allclose(frame.world_from_camera, bag_frame.world_from_camera, atol=1e-9)
+    in_world = [{i.object_name: f.world_from_camera[:3, :3] @ i.translation
+                 + f.world_from_camera[:3, 3] for i in f.instances} for f in rendered]
+    for name in in_world[0]:
+        assert np.linalg.norm(in_world[0][name] - in_world[2][name]) < 1e-6
     # One scene: the first frame's objects, seen from a camera that moved.
     assert not np.array_equal(frames[0].image_rgb, frames[2].image_rgb)
 
 
+def test_a_moved_object_stands_elsewhere_from_the_middle_of_the_path(egl, tmp_path, lmo_root):
+    out = tmp_path / 'moved'
+    args = parse('--dataset', str(lmo_root), '--out', str(out), '--count', '4',
+                 '--scene-style', 'table', '--objects', 'duck,glue', '--camera-path',
+                 '--move', 'duck:0.05,0.0', '--previews', '0')
+    assert args.func(args) == 0
+    rendered = BopDataset(out, split='train_synth').frames()
+
+    def in_world(frame, name):
+        instance = next(i for i in frame.instances if i.object_name == name)
+        return frame.world_from_camera[:3, :3] @ instance.translation + \
+            frame.world_from_camera[:3, 3]
+    assert np.allclose(in_world(rendered[2], 'duck') - in_world(rendered[1], 'duck'),
+                       [0.05, 0.0, 0.0], atol=1e-6)
+    assert np.allclose(in_world(rendered[2], 'glue'), in_world(rendered[1], 'glue'), atol=1e-6)
+
+
 @pytest.mark.parametrize('argv, message', [
     (['--count', '1', '--camera-path'], '--camera-path needs --scene-style table'),
+    (['--count', '1', '--scene-style', 'table', '--move', 'duck:0.1,0'], '--move duck'),
     (['--count', '1', '--scene-style', 'table', '--rate', '15'], '--rate is for --camera-path'),
     (['--count', '0'], '--count'),
     (['--count', '1', '--objects', 'ape,teapot'], 'teapot'),
