@@ -246,7 +246,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     # the coarse scales the start is far, and a local model learned at a wrong contour
     # confirms it. A start with given colours (a track's) keeps its one model.
     modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
-                              config.mask_weight, occlusions, options.refine_local_colors)
+                              config.mask_weight, occlusions, options)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]
