@@ -109,7 +109,8 @@ _TUPLES = {'tuple[int, int]': (int, 2), 'tuple[float, ...]': (float, None)}
 
 
 def declared(settings_class: Any) -> dict[str, Setting]:
-    """Return {name: Setting} of a settings class (or object), in declaration order.
+    """
+    Return {name: Setting} of a settings class (or object), in declaration order.
 
     Fields of nested settings objects (``nested``) are left out.
     """
