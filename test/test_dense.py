@@ -31,7 +31,8 @@ from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import DEFAULT_DENSE_WEIGHTS, load_network, save_weights
 from bbpose_ros.core.nets.crops import square_boxes
 from bbpose_ros.core.nets.dense import DenseConfig, DenseNet
-from bbpose_ros.core.pipeline.correspondences import DenseCorrespondenceEstimator
+from bbpose_ros.core.pipeline.correspondences import (DenseCorrespondenceEstimator,
+                                                      DenseStageSettings)
 from bbpose_ros.core.pipeline.poses import Detection
 from bbpose_ros.core.render import Draw, Lighting, MeshRenderer, RenderMesh
 from bbpose_ros.core.synth.crop_scenes import CropScenes
@@ -323,10 +324,10 @@ def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_mode
                   if np.all(np.isfinite(i.box_uv))]
     image = frame.load_image()
     _, alone = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
-                                            pnp_threads=1)(
+                                            DenseStageSettings(pnp_threads=1))(
         image, frame.camera, detections)
     _, pooled = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
-                                             pnp_threads=3)(
+                                             DenseStageSettings(pnp_threads=3))(
         image, frame.camera, detections)
     assert len(detections) >= 4 and sum(p is not None for p in alone) >= len(detections) - 1
     for one, other in zip(alone, pooled):
@@ -334,8 +335,8 @@ def test_pnp_on_a_thread_pool_gives_the_poses_of_one_thread(lmo_frames, lmo_mode
         if one is not None:
             np.testing.assert_array_equal(one.rotation, other.rotation)
             np.testing.assert_array_equal(one.translation, other.translation)
-    with pytest.raises(InputError, match='PnP threads must be >= 0'):
-        DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(), pnp_threads=-1)
+    with pytest.raises(InputError, match=r'pnp_threads: -1 is out of range'):
+        DenseStageSettings(pnp_threads=-1)
 
 
 def test_the_stage_runs_on_some_of_its_objects(lmo_frames, lmo_models):
@@ -345,10 +346,11 @@ def test_the_stage_runs_on_some_of_its_objects(lmo_frames, lmo_models):
                      if np.all(np.isfinite(i.box_uv)))
     name = detection.object_name
     image = frame.load_image()
+    alone = DenseStageSettings(pnp_threads=1)
     _, every = DenseCorrespondenceEstimator(network, lmo_models, PipelineOptions(),
-                                            pnp_threads=1)(image, frame.camera, [detection])
+                                            alone)(image, frame.camera, [detection])
     _, one = DenseCorrespondenceEstimator(network, {name: lmo_models[name]}, PipelineOptions(),
-                                          pnp_threads=1)(image, frame.camera, [detection])
+                                          alone)(image, frame.camera, [detection])
     assert every[0] is not None
     np.testing.assert_array_equal(every[0].rotation, one[0].rotation)
     np.testing.assert_array_equal(every[0].translation, one[0].translation)

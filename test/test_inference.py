@@ -53,7 +53,7 @@ def _trained_looking(network):
 
 def test_folded_copy_computes_the_same_function():
     net = _trained_looking(QNet(QNetConfig(OBJECTS)))
-    folded = inference_network(net)
+    folded = inference_network(net, 'cpu')
     assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.modules())
     assert any(isinstance(m, torch.nn.BatchNorm2d) for m in net.modules())   # untouched
     crops, index = torch.rand(6, 3, 48, 48), torch.tensor([0, 1, 5, 6, 7, 0])

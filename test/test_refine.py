@@ -271,8 +271,9 @@ def test_screening_continues_the_best_scored_candidate(viewpoint_models, lmo_fra
     # Without starts given back (keep_better_start), the survivor of the screening continues
     # where it stopped: the same pose as refining that candidate straight through.
     config = RefinerConfig(keep_better_start=False)
-    refiner = PoseRefiner(models, SHIPPED, config, screening_iterations=3)
-    assert refiner.screening_iterations < refiner.config.iterations
+    refiner = PoseRefiner(models, SHIPPED,
+                          dataclasses.replace(config, screening_iterations=3))
+    assert refiner.config.screening_iterations < refiner.config.iterations
     kept = refiner.best_of(image, frame.camera, groups)
     assert len(kept) == len(groups)
     straight = PoseRefiner(models, SHIPPED, config)
@@ -373,7 +374,7 @@ class ScriptedRefiner(PoseRefiner):
 
     def __init__(self, models, runs, agreement, screening_iterations):
         super().__init__(models, PipelineOptions(refine_mask_choice_weight=8.0),
-                         screening_iterations=screening_iterations)
+                         RefinerConfig(screening_iterations=screening_iterations))
         self.runs = list(runs)      # per call of _refine, its list of Refinement
         self._agreement = lambda camera, names, rotations, translations, masks: np.array(
             [agreement(t) for t in translations])
@@ -435,7 +436,7 @@ def test_screening_keeps_a_failed_candidate_failed(viewpoint_models, lmo_models)
                   for axis in ([0.05, 0.0, 0.0], [0.0, 0.05, 0.0])]
     alone = refine_one(models['duck'], crop, window, candidates[0].rotation, translation)
     assert alone.status == 'too_few_lines'
-    screening = PoseRefiner(models, SHIPPED, screening_iterations=3)
+    screening = PoseRefiner(models, SHIPPED, RefinerConfig(screening_iterations=3))
     screened = screening.best_of(crop, window, [candidates])
     assert len(screened) == 1 and screened[0].refinement_score == 0.0
     np.testing.assert_array_equal(screened[0].rotation, candidates[0].rotation)

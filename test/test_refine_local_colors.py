@@ -50,7 +50,8 @@ def _pull_px(scenes, window):
     """(lines,) each valid line's contour mean at scale 1 with the colours of the truth, px."""
     pulls = []
     for bins, camera, models, rotation, translation in scenes:
-        modality = RegionModality(models, bins, camera, 3.0, local_window=window,
+        modality = RegionModality(models, bins, camera, 3.0,
+                                  options=PipelineOptions(refine_local_colors=window),
                                   occlusions=(np.arange(len(models)),
                                               np.ones(len(models), bool)))
         hist_f, hist_b, _, local = modality.local_colors(rotation, translation)
@@ -88,7 +89,8 @@ def test_local_colours_hold_the_depth_of_the_truth(truths):
 
 def test_local_colours_are_the_global_ones_without_samples(truths):
     bins, camera, models, rotation, translation = truths[0]
-    modality = RegionModality(models, bins, camera, 3.0, local_window=LOCAL_LINES)
+    modality = RegionModality(models, bins, camera, 3.0,
+                              options=PipelineOptions(refine_local_colors=LOCAL_LINES))
     hist_f, hist_b, _, local = modality.local_colors(rotation, translation)
     assert local.counts.sum() > 0
     local.counts[:] = 0     # a pose without samples (a track's): its global colours alone

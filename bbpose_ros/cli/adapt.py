@@ -28,6 +28,8 @@ import sys
 
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.common import add_blocks_argument, add_dataset_argument, in_blocks
+from bbpose_ros.cli.settings_options import add_settings_options, settings_made
+from bbpose_ros.core.adaptation.adapt_settings import AdaptSettings
 
 PARAMS_HEADER = ('# bbpose_node parameters written by bbpose adapt: the base parameters with the\n'
                  '# weights adapted to the recording (config/bbpose.yaml documents each one).\n')
@@ -62,11 +64,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_dataset_argument(parser)
     add_blocks_argument(parser)
     parser.add_argument('--out', required=True, type=Path, help='output folder (resumable)')
-    parser.add_argument('--rounds', type=int, default=None,
-                        help='teacher-students rounds, 1..3 (default 2)')
-    parser.add_argument('--seed', type=int, default=None, help="seed of the students' draws")
     parser.add_argument('--threads', type=int, default=None,
                         help='torch threads (default: all cores)')
+    add_settings_options(parser, AdaptSettings, 'adaptation settings (recorded in report.json)',
+                         names=('rounds', 'seed', 'map_labels'), show_defaults=True)
     parser.set_defaults(func=run)
 
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``bbpose adapt``; returns the exit status."""
     import torch
 
-    from bbpose_ros.core.adaptation.adapt_stages import Adaptation, AdaptSettings
+    from bbpose_ros.core.adaptation.adapt_stages import Adaptation
     from bbpose_ros.core.adaptation.frames import bag_frames, dataset_frames
     from bbpose_ros.core.data.models import load_bop_models
     from bbpose_ros.core.inference.weights import (DEFAULT_DENSE_WEIGHTS,
@@ -101,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         frames = dataset_frames(args.dataset, args.split)
     frames = in_blocks(frames, args.blocks, args.block_size)
-    given = {'rounds': args.rounds, 'seed': args.seed}
-    settings = AdaptSettings(**{k: v for k, v in given.items() if v is not None})
+    settings = settings_made(AdaptSettings, args)
     models = load_bop_models(config.dataset_dir, list(config.objects))
     print(f'adapting {", ".join(models)} on {len(frames)} frames into {args.out}')
     command = shlex.join(['bbpose'] + sys.argv[1:])

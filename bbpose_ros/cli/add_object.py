@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bbpose_ros.cli.common import add_dataset_argument, add_mesh_arguments
+from bbpose_ros.cli.settings_options import settings_made
 from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -129,12 +130,7 @@ def run(args: argparse.Namespace) -> int:
         if not fold.isdigit():
             raise InputError(f'--symmetry is AXIS:FOLD, e.g. z:2, got {args.symmetry!r}')
         symmetries = axis_symmetries(mesh, axis, int(fold))
-    given = {'scenes': args.scenes, 'crops': args.crops, 'seed': args.seed,
-             'workers': args.workers}
-    settings = AddObjectSettings(**{k: v for k, v in given.items() if v is not None})
-    for name in ('scenes', 'crops'):
-        if getattr(settings, name) < 1:
-            raise InputError(f'--{name} must be at least 1')
+    settings = settings_made(AddObjectSettings, args)     # --scenes, --crops, --seed, --workers
     backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
     task = AddObject(AddedObject(args.name, mesh, symmetries),
                      base_weight_files(args.base_weights), args.dataset, args.out, settings,

@@ -41,7 +41,7 @@ writes ``params.yaml``, the base parameters with the adapted weight files
 """
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 import json
 from pathlib import Path
 import shutil
@@ -51,12 +51,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from bbpose_ros.core.adaptation.adapt_settings import AdaptSettings
 from bbpose_ros.core.adaptation.frames import image_fingerprint, RecordedFrame
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions, write_label_set
 from bbpose_ros.core.adaptation.map_labels import mapped_teacher_poses
-from bbpose_ros.core.adaptation.selection import (select_labels, SelectionSettings, Verdict,
-                                                  verdict_counts)
-from bbpose_ros.core.adaptation.students import (adapt_detector, adapt_qnet, HeadTraining)
+from bbpose_ros.core.adaptation.selection import select_labels, Verdict, verdict_counts
+from bbpose_ros.core.adaptation.students import adapt_detector, adapt_qnet
 from bbpose_ros.core.adaptation.teacher import Teacher, TeacherPose
 from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.inference.int8_graphs import int8_graph_path
@@ -66,12 +66,10 @@ from bbpose_ros.core.pipeline.loader import PipelineFiles, WeightFiles
 from bbpose_ros.core.pipeline.overlays import draw_box_2d, draw_label
 from bbpose_ros.core.synth.export import BopSceneWriter, write_json
 from bbpose_ros.core.training.cache import TrainingCache
-from bbpose_ros.core.training.object_rows import RowTraining
 from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
                                                    quantize_network)
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.staged_folder import StagedFolder
-from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
 STUDENTS = ('detector', 'qnet')
@@ -80,46 +78,6 @@ ADAPTED_ON = 'adapted_on'
 PREVIEW_FRAMES = 8
 CALIBRATION_CROPS = 256
 ACCEPTED_COLOR, REFUSED_COLOR = (0, 220, 0), (230, 40, 40)
-
-
-@dataclass(frozen=True)
-class AdaptSettings:
-    """
-    What the adaptation runs (recorded in ``report.json`` and ``inputs.json``).
-
-    Attributes:
-        rounds: teacher-students rounds (1..3); each later round's teacher runs the
-            previous round's students.
-        keep_per_round: the share of each object's confident poses a round keeps
-            (``SelectionSettings.keep``), one per round; the last repeats.
-        selection: the other gates (its ``keep`` is replaced per round).
-        teacher_threshold: lowest detector score the teacher refines (0..1); poses under
-            ``selection.min_detection_score`` only mark ignore regions.
-        detector: HeadTraining of the detector's heads.
-        qnet: RowTraining of Q-Net's head rows.
-        seed: seed of the students' draws.
-
-    """
-
-    rounds: int = 2
-    keep_per_round: tuple[float, ...] = (0.5, 0.7)
-    selection: SelectionSettings = field(default_factory=SelectionSettings)
-    teacher_threshold: float = 0.1
-    detector: HeadTraining = field(default_factory=HeadTraining)
-    qnet: RowTraining = field(default_factory=lambda: RowTraining(
-        steps=400, batch=32, lr=1e-3, passes=4, warmup=50))
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.rounds <= 3:
-            raise InputError(f'rounds must be 1..3, got {self.rounds}')
-        if not self.keep_per_round:
-            raise InputError('keep_per_round needs at least one share')
-
-    def selection_of(self, round_number: int) -> SelectionSettings:
-        """Return the gates of round ``round_number`` (1-based)."""
-        keep = self.keep_per_round[min(round_number, len(self.keep_per_round)) - 1]
-        return replace(self.selection, keep=keep)
 
 
 class Adaptation:
@@ -202,15 +160,16 @@ class Adaptation:
         """
         Write ``teacher.json``: the careful pipeline's poses of every frame.
 
-        Where frames carry camera poses, the poses are the map's of their scene
-        (``map_labels``).
+        With ``map_labels``, where frames carry camera poses, the poses are the map's of
+        their scene (``map_labels.py``).
         """
         teacher = Teacher(self.models, self.options, weights, self.settings.teacher_threshold)
         poses = {}
         for frame in tqdm(self.frames, desc='teacher', unit='frame',
                           disable=not self.progress):
             poses[frame.key] = teacher(frame.read(), frame.camera)
-        if any(frame.world_from_camera is not None for frame in self.frames):
+        if self.settings.map_labels and any(frame.world_from_camera is not None
+                                            for frame in self.frames):
             poses, moved = mapped_teacher_poses(self.frames, poses, self.models, self.options)
             self.log(f'[teacher] the map of each scene gave {moved} of '
                      f'{sum(len(p) for p in poses.values())} poses (frames with camera poses)')

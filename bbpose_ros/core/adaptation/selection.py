@@ -43,45 +43,13 @@ from itertools import combinations
 
 import numpy as np
 
+from bbpose_ros.core.adaptation.adapt_settings import SelectionSettings
 from bbpose_ros.core.adaptation.teacher import TeacherPose
 from bbpose_ros.core.geometry.boxes import box_iou
-from bbpose_ros.core.util.declarations import check_settings, setting
 
 VERDICTS = ('accepted', 'detection', 'confidence', 'box', 'consistency')
 # Frames two objects must share before their centre distance is judged.
 MIN_PAIR_FRAMES = 3
-
-
-def _above_zero(share: float) -> str | None:
-    """Return why ``share`` is no share above 0, or None."""
-    return None if share > 0.0 else f'{share} is out of range (0, 1]'
-
-
-@dataclass(frozen=True)
-class SelectionSettings:
-    """
-    The gates of ``select_labels`` (recorded in ``report.json``).
-
-    Each field is a setting (``util.declarations``), described in its declaration and checked
-    when the object is made.
-    """
-
-    min_detection_score: float = setting(
-        0.3, 'Lowest detector score of a label.', low=0.0, high=1.0)
-    keep: float = setting(
-        0.5, "Share of each object's poses over the recording a round keeps, by confidence "
-        '(above 0).', low=0.0, high=1.0, check=_above_zero)
-    min_confidence: float = setting(
-        0.6, 'Lowest refinement score of a label whatever keep.', low=0.0, high=1.0)
-    min_box_iou: float = setting(
-        0.5, "Lowest IoU between the detector's box and the pose's projected box.",
-        low=0.0, high=1.0)
-    consistency_mm: float = setting(
-        60.0, 'Largest change of a centre distance across frames, millimetres; 0: no '
-        'consistency gate.', low=0.0)
-
-    def __post_init__(self) -> None:
-        check_settings(self)
 
 
 @dataclass(frozen=True)

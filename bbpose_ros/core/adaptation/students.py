@@ -35,7 +35,6 @@ retrain a trunk, and the frozen trunk cannot forget the renders' features.
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -51,44 +50,9 @@ from bbpose_ros.core.training.detector_training import (DetectorBatches,
                                                         DetectorTrainSettings, focal_loss,
                                                         to_input_pixels)
 from bbpose_ros.core.training.loop import cosine_lr
-from bbpose_ros.core.training.object_rows import fit_new_rows, RowTraining
+from bbpose_ros.core.training.object_rows import fit_new_rows
 from bbpose_ros.core.training.qnet_training import QNetTrainSettings
-from bbpose_ros.core.util.errors import InputError
-
-HEATMAP_MODES = ('none', 'bias', 'all')
-
-
-@dataclass(frozen=True)
-class HeadTraining:
-    """
-    How the detector's heads learn (recorded in the weight file and ``report.json``).
-
-    Attributes:
-        steps: Adam steps on the cached features (cosine rate after ``warmup`` steps).
-        batch: frames per step.
-        lr: peak learning rate.
-        passes: augmented copies of each labelled frame whose features are cached.
-        anchor: weight of the squared distance of the heads to their start values.
-        box_weight: weight of the box sides' L1 beside the heatmap's focal loss.
-        warmup: warm-up steps.
-        heatmap: what of the heatmap head learns: 'none', 'bias' (one threshold per
-            object) or 'all'; the box head always learns.
-
-    """
-
-    steps: int = 400
-    batch: int = 8
-    lr: float = 1e-3
-    passes: int = 4
-    anchor: float = 1.0
-    box_weight: float = 1.0
-    warmup: int = 50
-    heatmap: str = 'none'
-
-    def __post_init__(self) -> None:
-        if self.heatmap not in HEATMAP_MODES:
-            raise InputError(f'heatmap must be one of {", ".join(HEATMAP_MODES)}, got '
-                             f'{self.heatmap!r}')
+from bbpose_ros.core.training.settings import HeadTraining, RowTraining
 
 
 def ignore_mask(regions: IgnoreRegions, scenes: np.ndarray, network: CenterBoxNet,

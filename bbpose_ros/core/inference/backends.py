@@ -40,7 +40,7 @@ from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.images import ImageInput
 
 
-def inference_network(network: nn.Module, device: str | torch.device = 'cpu') -> nn.Module:
+def inference_network(network: nn.Module, device: str | torch.device) -> nn.Module:
     """
     Return a copy of an eval-mode network prepared for fast inference on ``device``.
 
@@ -60,9 +60,16 @@ def inference_network(network: nn.Module, device: str | torch.device = 'cpu') ->
 
 
 class TorchRunner:
-    """Eager PyTorch: ``runner(images, *rest)`` returns the network's outputs."""
+    """
+    Eager PyTorch: ``runner(images, *rest)`` returns the network's outputs.
 
-    def __init__(self, network: nn.Module, device: str | torch.device = 'cpu') -> None:
+    Args:
+        network: the trained network (a prepared copy runs, ``inference_network``).
+        device: the torch device it runs on (the setting ``device``).
+
+    """
+
+    def __init__(self, network: nn.Module, device: str | torch.device) -> None:
         self.network = ImageInput(inference_network(network, device))
         self.device = device
 
@@ -107,7 +114,9 @@ def export_onnx(network: nn.Module, example_inputs: Sequence[np.ndarray],
                 input_names: Sequence[str], output_names: Sequence[str],
                 dynamic_batch: bool = False) -> bytes:
     """
-    Export ``ImageInput(inference_network(network))`` to ONNX, in memory (``export_module``).
+    Export ``ImageInput(inference_network(network, 'cpu'))`` to ONNX, in memory.
+
+    The graph is traced on the CPU (ONNX Runtime runs it there) by ``export_module``.
 
     Args:
         network: an eval-mode network whose forward has no data-dependent control flow (it
@@ -121,7 +130,7 @@ def export_onnx(network: nn.Module, example_inputs: Sequence[np.ndarray],
         The serialised ONNX model.
 
     """
-    return export_module(ImageInput(inference_network(network)),
+    return export_module(ImageInput(inference_network(network, 'cpu')),
                          [torch.from_numpy(x) for x in example_inputs], input_names,
                          output_names, dynamic_batch)
 
@@ -133,15 +142,16 @@ class OnnxRuntimeRunner:
     Args:
         model: a serialised ONNX model (``export_onnx``, or an int8 graph), its inputs in
             the order the runner is called with.
-        threads: ONNX Runtime intra-op threads (None: one per physical core).
+        inference_threads: ONNX Runtime intra-op threads (the setting; 0: one per physical
+            core).
 
     """
 
-    def __init__(self, model: bytes, threads: int | None = None) -> None:
+    def __init__(self, model: bytes, inference_threads: int) -> None:
         import onnxruntime
 
         options = onnxruntime.SessionOptions()
-        options.intra_op_num_threads = threads or 0
+        options.intra_op_num_threads = inference_threads
         options.inter_op_num_threads = 1
         # Idle threads sleep instead of spinning: the node waits for frames most of the time.
         options.add_session_config_entry('session.intra_op.allow_spinning', '0')
@@ -152,8 +162,8 @@ class OnnxRuntimeRunner:
 
     @classmethod
     def from_network(cls, network: nn.Module, example_inputs: Sequence[np.ndarray],
-                     dynamic_batch: bool = False,
-                     threads: int | None = None) -> 'OnnxRuntimeRunner':
+                     inference_threads: int,
+                     dynamic_batch: bool = False) -> 'OnnxRuntimeRunner':
         """Export ``network`` (``export_onnx``, traced with ``example_inputs``) and run it."""
         with torch.inference_mode():
             outputs = ImageInput(network.eval())(*map(torch.from_numpy, example_inputs))
@@ -161,7 +171,7 @@ class OnnxRuntimeRunner:
         model = export_onnx(network, example_inputs,
                             [f'input{k}' for k in range(len(example_inputs))],
                             [f'output{k}' for k in range(count)], dynamic_batch)
-        return cls(model, threads)
+        return cls(model, inference_threads)
 
     def __call__(self, *inputs: np.ndarray) -> torch.Tensor | tuple[torch.Tensor, ...]:
         """Run the network on numpy inputs (uint8 images first); outputs are torch tensors."""
@@ -190,8 +200,8 @@ def make_runner(network: nn.Module, example_inputs: Sequence[np.ndarray],
     """
     if options.inference_backend == 'torch':
         return TorchRunner(network, options.device)
-    return OnnxRuntimeRunner.from_network(network, example_inputs, dynamic_batch,
-                                          options.inference_threads)
+    return OnnxRuntimeRunner.from_network(network, example_inputs, options.inference_threads,
+                                          dynamic_batch)
 
 
 def graph_runner(model: bytes, options: PipelineOptions) -> OnnxRuntimeRunner:

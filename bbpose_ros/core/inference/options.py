@@ -25,9 +25,10 @@ config``) are generated from ``SETTINGS``, declared as every settings class is
 each field, then the combinations), so a value is checked once, wherever it comes from.
 
 The stages take the PipelineOptions itself and read their settings from it by these names
-and units (``options.refine_local_colors`` in ``refine.refiner``, ``options.inference_threads``
-in ``inference.backends``): no stage renames, converts, defaults or checks a setting again,
-and a stage used alone (in a test) gets its settings from ``PipelineOptions(...)`` too.
+and units (``options.refine_local_colors`` in ``refine.region_modality``,
+``options.inference_threads`` in ``inference.backends``): no stage renames, converts,
+defaults or checks a setting again, and a stage used alone (in a test) gets its settings
+from ``PipelineOptions(...)`` too.
 
 A leaf module: it imports nothing but ``util``, so the parameter table and the
 command-line parsers load without torch or numba.

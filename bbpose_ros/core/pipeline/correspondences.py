@@ -18,8 +18,8 @@ The dense correspondence stage: a frame's detections -> dense maps -> PnP poses.
 All crops of a frame go through the dense net (``nets.dense``) in one batch; each crop is
 cut as Q-Net's (square, the net's ``context``, around the detection's amodal box), and
 its maps give a pose by PnP with RANSAC (``geometry.dense_pnp``). The crops' PnP solves run
-on a small thread pool: OpenCV releases the GIL, and each solve seeds its own RANSAC, so
-the poses do not depend on the pool.
+on a small thread pool (``DenseStageSettings.pnp_threads``): OpenCV releases the GIL, and
+each solve seeds its own RANSAC, so the poses do not depend on the pool.
 """
 
 from collections.abc import Mapping, Sequence
@@ -39,7 +39,28 @@ from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.nets.crops import extract_crops, FILL_VALUE, square_boxes
 from bbpose_ros.core.nets.dense import DenseNet
 from bbpose_ros.core.pipeline.poses import Detection
+from bbpose_ros.core.util.declarations import check_settings, setting
 from bbpose_ros.core.util.errors import InputError
+
+
+@dataclass(frozen=True)
+class DenseStageSettings:
+    """
+    The dense stage's own settings, below the node's parameters (the defaults serve it).
+
+    Each field's description is in its declaration (``util.declarations``).
+
+    Raises:
+        InputError: 'name: reason' for the first value it does not take.
+
+    """
+
+    pnp_threads: int = setting(
+        0, "Threads the crops' PnP solves are spread over; 0: one per core, 1: in the "
+        'calling thread.', low=0, high=256)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 @dataclass(frozen=True)
@@ -70,8 +91,7 @@ class DenseCorrespondenceEstimator:
         models: {name: ObjectModel} of the objects it is run on (for the model boxes): the
             network's or some of them.
         options: the PipelineOptions: what runs the network (``backends.make_runner``).
-        pnp_threads: threads the crops' PnP solves are spread over (0: one per core; 1:
-            in the calling thread).
+        settings: the stage's own DenseStageSettings (``pnp_threads``).
 
     Attributes:
         precision: 'fp32': the dense net always runs in float (its int8 graph cost accuracy:
@@ -82,9 +102,8 @@ class DenseCorrespondenceEstimator:
     precision = 'fp32'
 
     def __init__(self, network: DenseNet, models: Mapping[str, ObjectModel],
-                 options: PipelineOptions, pnp_threads: int = 0) -> None:
-        if pnp_threads < 0:
-            raise InputError(f'PnP threads must be >= 0 (0: one per core), got {pnp_threads}')
+                 options: PipelineOptions,
+                 settings: DenseStageSettings = DenseStageSettings()) -> None:
         self.config = network.config
         missing = [name for name in models if name not in self.config.objects]
         if missing:
@@ -93,7 +112,7 @@ class DenseCorrespondenceEstimator:
         self.index = {name: k for k, name in enumerate(self.config.objects)}
         self.boxes = {name: model_box(model.vertices) for name, model in models.items()}
         self.network = make_runner(network, self._blank_batch(1), options, dynamic_batch=True)
-        workers = pnp_threads or os.cpu_count() or 1
+        workers = settings.pnp_threads or os.cpu_count() or 1
         self._pnp_pool = ThreadPoolExecutor(workers, 'dense-pnp') if workers > 1 else None
 
     def maps(self, image_rgb: np.ndarray, detections: Sequence[Detection]) -> DenseMaps:

@@ -79,9 +79,6 @@ class PosePipeline:
             path alone): its masks guide the refiner, and with ``options.uses_dense`` its PnP
             poses are candidates too (placed first: unrefined, a found PnP pose is reported);
             with ``options.corrects_boxes`` its amodal masks correct the boxes.
-        selection: how the Bounding Box Equation chooses its touching points
-            (``bbox_equation.SELECTIONS``; default the tangent planes, no iteration).
-        max_iterations: bound on the re-selections of 'direct_then_perspective'.
 
     Raises:
         InputError: a refiner without ``options.refine``, or ``options.refine`` without one;
@@ -96,8 +93,7 @@ class PosePipeline:
                      np.ndarray | RotationHypotheses] | None = None,
                  hypothesis_selector: HypothesisSelector | None = None,
                  refiner: PoseRefiner | None = None,
-                 correspondences: DenseCorrespondenceEstimator | None = None,
-                 selection: str = 'tangent_planes', max_iterations: int = 10) -> None:
+                 correspondences: DenseCorrespondenceEstimator | None = None) -> None:
         if options.refine != (refiner is not None):
             raise InputError(f'options.refine is {options.refine} but the pipeline was given '
                              f'{"no" if refiner is None else "a"} refiner')
@@ -110,8 +106,6 @@ class PosePipeline:
         self._points = pad_point_sets([m.hull_points for m in self.models.values()])
         self.detector = detector
         self.rotation_estimator = rotation_estimator
-        self.selection = selection
-        self.max_iterations = max_iterations
         self.hypothesis_selector = hypothesis_selector
         self.refiner = refiner
         self.correspondences = correspondences
@@ -231,9 +225,7 @@ class PosePipeline:
         points = self._points[[self._point_index[d.object_name] for d in detections]]
         boxes = np.stack([d.box_uv for d in detections])
         solution = solve_translations(rotations, boxes, points, camera.fx, camera.fy,
-                                      camera.cx, camera.cy,
-                                      selection=self.selection,
-                                      max_iterations=self.max_iterations)
+                                      camera.cx, camera.cy)
         return [PoseEstimate(d, r, t, source=source)
                 for d, r, t in zip(detections, rotations, solution.translations)]
 

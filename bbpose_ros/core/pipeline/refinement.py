@@ -42,15 +42,9 @@ from bbpose_ros.core.refine.refiner import (compile_kernels, refine_poses, Refin
                                             RefinerConfig)
 from bbpose_ros.core.refine.viewpoint_cache import load_viewpoint_models
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
-from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
     from bbpose_ros.core.data.models import ObjectModel
-
-# Correspondence iterations every hypothesis of a detection gets before only the best-scored
-# one is refined to the end: the whole scale schedule once (6, 4, 2, 1) and two more at the
-# finest scale, by which a wrong start shows.
-DEFAULT_SCREENING_ITERATIONS = 6
 
 
 class PoseRefiner:
@@ -62,15 +56,9 @@ class PoseRefiner:
             of other objects pass unchanged.
         options: the PipelineOptions: ``refine_min_score`` and ``refine_mask_choice_weight``
             here, the other ``refine_*`` settings in ``refine_poses``.
-        config: the method's RefinerConfig, shared by all objects (default: the shipped).
-        screening_iterations: of a detection with several candidates, each is refined this
-            many iterations and only the best-scored continues (at least the config's
-            iterations: every candidate is refined to the end). Screening needs the config's
-            histogram_rate 1 (colours re-measured in full), under which it gives the same
-            pose as refining the chosen candidate in one run, unless a start was given back
-            (keep_better_start, or the mask merit below) or no colours can be measured at the
-            pose it reached (then it ends as 'outside_image'); with another rate every
-            candidate is refined to the end.
+        config: the method's RefinerConfig, shared by all objects (default: the shipped);
+            its ``screening_iterations`` bound the run of each of a detection's candidates
+            before only the best-scored continues.
 
     Where a detection's candidates come with a predicted amodal mask (``best_of``'s
     ``choice_masks``), each that ran is chosen by its merit, the score +
@@ -83,13 +71,9 @@ class PoseRefiner:
     """
 
     def __init__(self, viewpoint_models: Mapping[str, ViewpointModel],
-                 options: PipelineOptions, config: RefinerConfig = RefinerConfig(),
-                 screening_iterations: int = DEFAULT_SCREENING_ITERATIONS) -> None:
-        if screening_iterations < 1:
-            raise InputError(f'screening_iterations must be >= 1, got {screening_iterations}')
+                 options: PipelineOptions, config: RefinerConfig = RefinerConfig()) -> None:
         self.options = options
         self.config = config
-        self.screening_iterations = int(screening_iterations)
         self.viewpoint_models = dict(viewpoint_models)
         self._agreement = MaskAgreement(self.viewpoint_models)
 
@@ -107,10 +91,11 @@ class PoseRefiner:
         """
         Refine the candidate poses of each detection and keep the best one.
 
-        Every candidate gets ``screening_iterations``; the best of each detection (by its
-        score, or with ``choice_masks`` by its merit: score + ``refine_mask_choice_weight`` x
-        mask agreement) then continues to the end of the schedule. With ``choice_masks`` and the
-        config's keep_better_start, a refinement that lowered the merit gives its start back.
+        Every candidate gets the config's ``screening_iterations``; the best of each detection
+        (by its score, or with ``choice_masks`` by its merit: score +
+        ``refine_mask_choice_weight`` x mask agreement) then continues to the end of the
+        schedule. With ``choice_masks`` and the config's keep_better_start, a refinement that
+        lowered the merit gives its start back.
 
         Args:
             image_rgb: (H, W, 3) uint8 image.
@@ -134,11 +119,12 @@ class PoseRefiner:
         bins = color_bins(image_rgb)
         # Resuming re-measures the colours at the pose reached, which is what a colour model
         # re-measured in full after every iteration holds anyway.
+        screening = self.config.screening_iterations
         screened = any(len(group) > 1 for group in candidates) \
-            and self.screening_iterations < self.config.iterations \
+            and screening < self.config.iterations \
             and self.config.histogram_rate == 1.0
         results = self._refine(bins, camera, jobs, [(p.rotation, p.translation) for _, p in jobs],
-                               masks, self.screening_iterations if screened else None)
+                               masks, screening if screened else None)
         best = {}
         # A failed candidate (score 0, its start given back) gets no agreement: any
         # candidate that ran stays ahead of it, as by the score alone.
@@ -159,7 +145,7 @@ class PoseRefiner:
             finished = self._refine(
                 bins, camera, [(k, pose) for k, pose, _ in going],
                 [(result.rotation, result.translation) for *_, result in going], masks,
-                self.config.iterations - self.screening_iterations, self.screening_iterations,
+                self.config.iterations - screening, screening,
                 prior_centres=[(pose.rotation, pose.translation) for _, pose, _ in going])
             for (k, pose, _), result in zip(going, finished):
                 if not result.ok:       # a failure gives the candidate's own start back

@@ -23,8 +23,9 @@ for each thing they model: ``contour_projection`` (the contour of each pose's cl
 in the image, and the points of it that a nearer instance hides), ``line_histograms`` (the
 colours beside the contour), ``line_distributions`` (where the contour lies on each line)
 and ``line_gradient`` (the pull on each pose). This module holds what they share: the
-compilation flags, the number of threads their per-pose loops run on (``use_threads``) and
-whether a parallel kernel must wait for another thread's (``parallel_launch``).
+compilation flags, the number of threads their per-pose loops run on (``use_threads``: the
+setting ``refine_threads``) and whether a parallel kernel must wait for another thread's
+(``parallel_launch``).
 
 Threads wait for work asleep, not spinning (``OMP_WAIT_POLICY=PASSIVE`` unless the
 environment sets it, before numba starts its OpenMP threads): on a robot's two cores the
@@ -51,10 +52,10 @@ KERNEL_FLAGS = {'cache': True, 'nogil': True, 'error_model': 'numpy',
                 'fastmath': {'nsz', 'arcp', 'contract', 'afn', 'reassoc'}}
 
 
-def use_threads(count: int) -> None:
-    """Run this thread's kernels on ``count`` threads (0: one per core, numba's default)."""
-    numba.set_num_threads(min(count, numba.config.NUMBA_NUM_THREADS) if count > 0
-                          else numba.config.NUMBA_NUM_THREADS)
+def use_threads(refine_threads: int) -> None:
+    """Run this thread's kernels on ``refine_threads`` (0: one per core, numba's default)."""
+    numba.set_num_threads(min(refine_threads, numba.config.NUMBA_NUM_THREADS)
+                          if refine_threads > 0 else numba.config.NUMBA_NUM_THREADS)
 
 
 _LAUNCHES = threading.Lock()

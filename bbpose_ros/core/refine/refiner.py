@@ -83,6 +83,15 @@ class RefinerConfig:
             ``region_modality``).
         keep_better_start: give back the start of a pose whose score the refinement
             lowered (the score is measured at the start too, one pass more).
+        screening_iterations: of a detection with several candidates (``PoseRefiner``),
+            each is refined this many iterations and only the best-scored continues (at
+            least ``iterations``: every candidate is refined to the end). The shipped 6 is
+            the whole scale schedule once (6, 4, 2, 1) and two more at the finest scale, by
+            which a wrong start shows. Screening needs ``histogram_rate`` 1 (colours
+            re-measured in full), under which it gives the same pose as refining the chosen
+            candidate in one run, unless a start was given back (keep_better_start, or the
+            mask merit) or no colours can be measured at the pose it reached (then it ends
+            as 'outside_image'); with another rate every candidate is refined to the end.
 
     """
 
@@ -96,6 +105,7 @@ class RefinerConfig:
     min_continuous_px: float = 3.0
     mask_weight: float = 1.0
     keep_better_start: bool = True
+    screening_iterations: int = 6
 
     def __post_init__(self) -> None:
         if not self.scales or min(self.scales) < 1:
@@ -112,6 +122,9 @@ class RefinerConfig:
             raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
         if not 0.0 <= self.mask_weight <= 1.0:
             raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
+        if self.screening_iterations < 1:
+            raise InputError('screening_iterations must be >= 1, got '
+                             f'{self.screening_iterations}')
 
 
 def prior_information(options: PipelineOptions) -> tuple[float, float]:
@@ -233,7 +246,7 @@ def refine_poses(bins: np.ndarray, camera: CameraIntrinsics,
     # the coarse scales the start is far, and a local model learned at a wrong contour
     # confirms it. A start with given colours (a track's) keeps its one model.
     modality = RegionModality(models, bins, camera, config.min_continuous_px, masks,
-                              config.mask_weight, occlusions, options.refine_local_colors)
+                              config.mask_weight, occlusions, options)
     status = np.full(count, 'ok', dtype=object)
     finite = np.isfinite(rotation).all(axis=(1, 2)) & np.isfinite(translation).all(axis=1)
     rotation[~finite], translation[~finite] = np.eye(3), [0.0, 0.0, 1.0]

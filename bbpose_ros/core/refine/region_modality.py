@@ -22,7 +22,8 @@ The region modality (SRT3D): correspondence lines across the projected contour.
   probability from the colour histograms; a smoothed step function slid along the line gives
   a discrete distribution of where the contour is on that line: its mean and variance; a
   predicted silhouette mask (``foreground_masks``) may stand in for or mix with the colours;
-* the colour model is one pair of histograms per pose, or local (``local_window``; RBOT's
+* the colour model is one pair of histograms per pose, or local (``refine_local_colors``;
+  RBOT's
   localized "tclc" histograms, Tjaden et al. 2018): each line's colours are those sampled on
   the lines near it along the contour, with the pose's histograms as a prior of
   ``LOCAL_PRIOR_PIXELS`` pixels. One pair of histograms gathers its background from all
@@ -47,6 +48,7 @@ import math
 import numpy as np
 
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
+from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.refine import (contour_projection, kernel_launch, line_distributions,
                                     line_gradient, line_histograms)
 from bbpose_ros.core.refine.color_histograms import BINS_PER_CHANNEL
@@ -135,8 +137,9 @@ class RegionModality:
             instances' poses behind it (``contour_projection.hide_occluded``; ICG's model
             occlusions, with the silhouettes of the poses themselves); None: no pose hides
             another.
-        local_window: > 0: local colour models (``LocalColors``) of the lines up to this
-            many places before and after each line along the contour; 0: one per pose.
+        options: the PipelineOptions, whose ``refine_local_colors`` > 0 gives local colour
+            models (``LocalColors``) of the lines up to this many places before and after
+            each line along the contour; 0: one per pose.
 
     """
 
@@ -144,9 +147,9 @@ class RegionModality:
                  camera: CameraIntrinsics, min_continuous_px: float,
                  masks: ForegroundMasks | None = None, mask_weight: float = 1.0,
                  occlusions: tuple[np.ndarray, np.ndarray] | None = None,
-                 local_window: int = 0) -> None:
+                 options: PipelineOptions = PipelineOptions()) -> None:
         self.occlusions = occlusions
-        self.local_window = int(local_window)
+        self.refine_local_colors = options.refine_local_colors
         self.min_continuous_px = min_continuous_px
         self.masks = masks
         self.mask_weight = float(mask_weight)
@@ -203,16 +206,16 @@ class RegionModality:
 
     def local_colors(self, rotation, translation, chosen=None):
         """
-        ``line_colors`` and, with ``local_window``, the lines' own samples.
+        ``line_colors`` and, with ``refine_local_colors``, the lines' own samples.
 
         Returns:
-            (as ``line_colors``, then LocalColors, or None without ``local_window``).
+            (as ``line_colors``, then LocalColors, or None without ``refine_local_colors``).
 
         """
         _, centres, normals, runs_f, runs_b, in_front = self.project(rotation, translation)
         if chosen is not None:
             in_front = in_front & chosen
-        count = len(centres) if self.local_window > 0 else 0
+        count = len(centres) if self.refine_local_colors > 0 else 0
         local = LocalColors(
             np.zeros((count, self.lines_per_view, 2, len(_HISTOGRAM_OFFSETS)), np.uint16),
             np.zeros((count, self.lines_per_view, 2), np.int32))
@@ -227,7 +230,8 @@ class RegionModality:
         """
         Sample the correspondence lines of every pose at ``scale`` (see CorrespondenceLines).
 
-        ``local``: LocalColors (with ``local_window``), or None: ``hist_f``, ``hist_b`` alone.
+        ``local``: LocalColors (with ``refine_local_colors``), or None: ``hist_f``, ``hist_b``
+        alone.
         """
         points, centres, normals, runs_f, runs_b, in_front = self.project(rotation,
                                                                           translation)
@@ -251,7 +255,7 @@ class RegionModality:
                 _NO_SQUARES if masks is None else masks.squares_uv.astype(np.float64),
                 np.float32(self.mask_weight), np.float32(OUTSIDE_LOG_ODDS),
                 _NO_SAMPLES if local is None else local.samples,
-                _NO_COUNTS if local is None else local.counts, self.local_window,
+                _NO_COUNTS if local is None else local.counts, self.refine_local_colors,
                 LOCAL_CHUNK_LINES, LOCAL_PRIOR_PIXELS)
         return CorrespondenceLines(valid, points, centres, normals, mean, variance, distribution)
 

@@ -37,7 +37,7 @@ refused rather than mixing two objects' files.
 """
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 import json
 from pathlib import Path
@@ -69,6 +69,7 @@ from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
 from bbpose_ros.core.training.staged_folder import StagedFolder
+from bbpose_ros.core.util.declarations import check_settings, nested, setting
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.core.util.files import atomic_output, write_json_atomic
 
@@ -87,31 +88,29 @@ class AddObjectSettings:
     """
     How much to render and train (recorded in ``report.json``).
 
-    Attributes:
-        scenes: table-top scenes rendered for the detector.
-        crops: crops rendered for Q-Net and the dense net.
-        detector: RowTraining of the detector's heatmap channel.
-        qnet: RowTraining of Q-Net's head.
-        dense: RowTraining of the dense net's output channels.
-        seed: seed of the renders and draws.
-        workers: rendering processes.
-        scene_shard: scenes per cache shard (renders resume shard by shard).
-        crop_shard: crops per cache shard.
-        held_out: share of the renders kept for the figures in ``report.json``.
+    Besides its settings, the RowTraining of each network: ``detector`` (its heatmap
+    channel), ``qnet`` (its head) and ``dense`` (its output channels).
+
+    Raises:
+        InputError: 'name: reason' for the first value it does not take.
 
     """
 
-    scenes: int = 500
-    crops: int = 8000
-    detector: RowTraining = field(default_factory=lambda: RowTraining(steps=1000, passes=2))
-    qnet: RowTraining = field(default_factory=lambda: RowTraining(steps=2000, passes=3,
-                                                                  seeds=3))
-    dense: RowTraining = field(default_factory=lambda: RowTraining(steps=1500, passes=1))
-    seed: int = 101
-    workers: int = 2
-    scene_shard: int = SHARD_SIZE
-    crop_shard: int = CROP_SHARD_SIZE
-    held_out: float = 0.1
+    scenes: int = setting(500, 'Table-top scenes rendered for the detector.', low=1)
+    crops: int = setting(8000, 'Crops rendered for Q-Net and the dense net.', low=1)
+    detector: RowTraining = nested(lambda: RowTraining(steps=1000, passes=2))
+    qnet: RowTraining = nested(lambda: RowTraining(steps=2000, passes=3, seeds=3))
+    dense: RowTraining = nested(lambda: RowTraining(steps=1500, passes=1))
+    seed: int = setting(101, 'Seed of the renders and draws.')
+    workers: int = setting(2, 'Rendering processes.', low=1)
+    scene_shard: int = setting(
+        SHARD_SIZE, 'Scenes per cache shard (renders resume shard by shard).', low=1)
+    crop_shard: int = setting(CROP_SHARD_SIZE, 'Crops per cache shard.', low=1)
+    held_out: float = setting(
+        0.1, 'Share of the renders kept for the figures in report.json.', low=0.0, high=1.0)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ shared layers lack; a new object unlike the known ones gets the features they ta
 """
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -53,8 +53,7 @@ from bbpose_ros.core.training.device import TrainingDevice
 from bbpose_ros.core.training.loop import cosine_lr
 from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
-                                               QNetTrainSettings)
-from bbpose_ros.core.util.declarations import check_settings, setting
+                                               QNetTrainSettings, RowTraining)
 from bbpose_ros.core.util.errors import InputError
 
 Network = CenterBoxNet | QNet | DenseNet
@@ -108,31 +107,6 @@ def with_objects(network: Network, objects: Sequence[str]) -> Network:
     copy = type(network)(replace(network.config, objects=objects))
     copy.load_state_dict({**state, **grown})
     return copy
-
-
-@dataclass
-class RowTraining:
-    """
-    How the new rows learn (recorded in the weight file).
-
-    Each field is a setting (``util.declarations``), described in its declaration and checked
-    when the object is made. Rows fitted to renders carry to real frames with a spread from
-    run to run that averaging over ``seeds`` narrows.
-    """
-
-    steps: int = setting(
-        2000, 'Adam steps on the cached features (cosine rate, warmup steps of warm-up).')
-    batch: int = setting(32, 'Cached inputs per step.')
-    lr: float = setting(1e-2, 'Peak learning rate.')
-    passes: int = setting(
-        2, 'Augmented copies of each training input whose features are cached.')
-    warmup: int = setting(100, 'Warm-up steps of the rate.')
-    seeds: int = setting(
-        1, 'Independent runs from the same start on the same cached features, each with its '
-        'own batch draws; the new rows are their average.', low=1)
-
-    def __post_init__(self) -> None:
-        check_settings(self)
 
 
 class _RowTask:

@@ -51,6 +51,9 @@ if TYPE_CHECKING:
     from bbpose_ros.core.data.bop import BopFrame
     from bbpose_ros.core.data.models import ObjectModel
 
+# The validations run the networks as trained: eager torch, on the pipeline's default device.
+EAGER = PipelineOptions(inference_backend='torch')
+
 
 class RealCrops:
     """
@@ -80,7 +83,7 @@ class RealCrops:
 
     def rotation_errors(self, network: QNet) -> np.ndarray:
         """(n,) degrees: symmetry-aware rotation error of every instance, GT boxes."""
-        estimate = QNetRotationEstimator(network, PipelineOptions(inference_backend='torch'))
+        estimate = QNetRotationEstimator(network, EAGER)
         errors = []
         for frame, image, instances in self.items:      # the runner is in inference mode
             detections = [Detection(i.object_name, 1.0, i.box_uv) for i in instances]
@@ -118,8 +121,7 @@ class RealDetections:
 
     def figures(self, network: CenterBoxNet) -> dict[str, float]:
         """Mean recall at IoU 0.5 (visible fraction >= 0.3) and AP50 of a CenterBoxNet."""
-        detector = BoxDetector(network, self.objects,
-                               PipelineOptions(inference_backend='torch'))
+        detector = BoxDetector(network, self.objects, EAGER)
         report = score_detections(self.frames, [detector(image) for image in self.images],
                                   self.objects)
         return {'real_recall50_visib30': report['mean']['recall_iou50_visib30'],
@@ -186,7 +188,7 @@ class RealDenseCrops:
 
     def predict(self, network: DenseNet, batch: int = 64) -> tuple[np.ndarray, ...]:
         """Return the maps of every crop: coordinates (n, M, M, 3), visible, amodal (n, M, M)."""
-        runner = TorchRunner(network)
+        runner = TorchRunner(network, EAGER.device)
         parts = [maps_to_numpy(runner(self.crops[k:k + batch],
                                       self.object_index[k:k + batch]))
                  for k in range(0, len(self.crops), batch)]

@@ -25,6 +25,11 @@ file's ``training.settings`` record: its type, default, range or choices and a o
 description live here and nowhere else. A settings object checks its values when it is made
 (``check_settings``), wherever they come from.
 
+The fits of output layers on cached features (``object_rows.fit_new_rows``,
+``adaptation.students``) declare theirs here too: ``FeatureTraining`` the settings both
+share, ``RowTraining`` (add-object's new rows) and ``HeadTraining`` (adapt's detector
+heads) what each adds, the latter with its own defaults (``redeclared``).
+
 A leaf module: it imports nothing but ``util``, so the ``bbpose train`` parsers load
 without torch.
 """
@@ -35,9 +40,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from bbpose_ros.core.util.declarations import check_settings, setting
+from bbpose_ros.core.util.declarations import check_settings, redeclared, setting
 
 AUGMENT_STYLES = ('basic', 'strong')
+HEATMAP_MODES = ('none', 'bias', 'all')
 
 
 @dataclass
@@ -161,3 +167,61 @@ class VerifierTrainSettings(TrainSettings):
     box_weight: float = setting(
         5.0, "Weight of the smooth L1 of the positives' side corrections beside the "
         'cross-entropy.', low=0.0)
+
+
+@dataclass(frozen=True)
+class FeatureTraining:
+    """
+    How output layers learn on cached features: what every such fit shares.
+
+    The shared layers run once over ``passes`` augmented copies of each training input, and
+    the layers fitted learn from those features (``object_rows.fit_new_rows``). Each
+    field's description is in its declaration; all are recorded in the weight file.
+
+    Raises:
+        InputError: 'name: reason' for the first value it does not take.
+
+    """
+
+    steps: int = setting(
+        2000, 'Adam steps on the cached features (cosine rate, warmup steps of warm-up).')
+    batch: int = setting(32, 'Cached inputs (frames or crops) per step.')
+    lr: float = setting(1e-2, 'Peak learning rate.')
+    passes: int = setting(
+        2, 'Augmented copies of each training input whose features are cached.')
+    warmup: int = setting(100, 'Warm-up steps of the rate.')
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class RowTraining(FeatureTraining):
+    """
+    How a network's new rows learn (``object_rows.fit_new_rows``; in the weight file).
+
+    Rows fitted to renders carry to real frames with a spread from run to run that averaging
+    over ``seeds`` narrows.
+    """
+
+    seeds: int = setting(
+        1, 'Independent runs from the same start on the same cached features, each with its '
+        'own batch draws; the new rows are their average.', low=1)
+
+
+@dataclass(frozen=True)
+class HeadTraining(FeatureTraining):
+    """How the detector's heads learn (``adaptation.students``; in the weight file)."""
+
+    steps: int = redeclared(FeatureTraining, 'steps', 400)
+    batch: int = redeclared(FeatureTraining, 'batch', 8)
+    lr: float = redeclared(FeatureTraining, 'lr', 1e-3)
+    passes: int = redeclared(FeatureTraining, 'passes', 4)
+    warmup: int = redeclared(FeatureTraining, 'warmup', 50)
+    anchor: float = setting(
+        1.0, 'Weight of the squared distance of the heads to their start values.')
+    box_weight: float = setting(
+        1.0, "Weight of the box sides' L1 beside the heatmap's focal loss.")
+    heatmap: str = setting(
+        'none', "What of the heatmap head learns: 'none', 'bias' (one threshold per object) "
+        "or 'all'; the box head always learns.", choices=HEATMAP_MODES)

@@ -20,7 +20,9 @@ fields with ``setting``: default, one-line description, inclusive range or choic
 ``declared`` reads them back as ``Setting`` records, from which the node's parameter
 descriptors, config/bbpose.yaml and the command-line options (``cli/settings_options.py``)
 are generated; ``check_setting`` is the one check of a value, which a settings class runs
-on each field when it is made (``check_settings``), wherever its values come from.
+on each field when it is made (``check_settings``), wherever its values come from. A field
+holding a settings object of its own (``nested``: it checks itself) is no setting, and a
+subclass gives an inherited setting another default with ``redeclared``.
 
 A leaf: it imports nothing but the errors, so the parameter table and the command-line
 parsers load without torch or numba.
@@ -58,6 +60,16 @@ def setting(default: Any, description: str, *, low: float | None = None,
         'metavar': metavar, 'check': check})
 
 
+def redeclared(settings_class: type, name: str, default: Any) -> Any:
+    """Make a subclass's field of ``settings_class``'s setting ``name``, another default."""
+    return field(default=default, metadata=settings_class.__dataclass_fields__[name].metadata)
+
+
+def nested(factory: Callable[[], Any]) -> Any:
+    """Make a dataclass field of a settings object (made by ``factory``): no setting itself."""
+    return field(default_factory=factory, metadata={'nested': True})
+
+
 @dataclass(frozen=True)
 class Setting:
     """
@@ -65,7 +77,7 @@ class Setting:
 
     Attributes:
         name: the field's name, also the node parameter's and (dashed) the CLI option's.
-        kind: the Python type of its values: bool, int, float, str or tuple (of ints).
+        kind: the Python type of its values: bool, int, float, str or tuple.
         default: the class's value.
         description: one line, with units.
         limits: inclusive (low, high), either None where unbounded; None: neither bound.
@@ -73,6 +85,8 @@ class Setting:
         optional: whether None is a value (it means what the description says).
         metavar: how a tuple value is spelled, or None.
         check: a further check of a value (its reason, or None), or None.
+        items: a tuple's type of items (int or float), or None.
+        length: a tuple's number of items; None: one or more.
 
     """
 
@@ -85,13 +99,21 @@ class Setting:
     optional: bool = False
     metavar: str | None = None
     check: Callable[[Any], str | None] | None = None
+    items: type | None = None
+    length: int | None = None
 
 
-_TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str, 'tuple[int, int]': tuple}
+_TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str}
+# {spelling: (type of items, number of items or None: one or more)} of the tuple settings.
+_TUPLES = {'tuple[int, int]': (int, 2), 'tuple[float, ...]': (float, None)}
 
 
 def declared(settings_class: Any) -> dict[str, Setting]:
-    """Return {name: Setting} of a settings class (or object), in declaration order."""
+    """
+    Return {name: Setting} of a settings class (or object), in declaration order.
+
+    Fields of nested settings objects (``nested``) are left out.
+    """
     return _declared(settings_class if isinstance(settings_class, type) else
                      type(settings_class))
 
@@ -100,15 +122,19 @@ def declared(settings_class: Any) -> dict[str, Setting]:
 def _declared(settings_class: type) -> dict[str, Setting]:
     result = {}
     for declaration in fields(settings_class):
+        if declaration.metadata.get('nested'):
+            continue
         spelled = declaration.type if isinstance(declaration.type, str) else \
             declaration.type.__name__
         kind, _, none = spelled.partition(' | ')
         metadata = declaration.metadata
         low, high = metadata['range']
+        items, length = _TUPLES.get(kind, (None, None))
         result[declaration.name] = Setting(
-            declaration.name, _TYPES[kind], declaration.default, metadata['description'],
-            None if low is None and high is None else (low, high), metadata['choices'],
-            none == 'None', metadata['metavar'], metadata['check'])
+            declaration.name, tuple if items else _TYPES[kind], declaration.default,
+            metadata['description'], None if low is None and high is None else (low, high),
+            metadata['choices'], none == 'None', metadata['metavar'], metadata['check'],
+            items, length)
     return result
 
 
@@ -125,8 +151,10 @@ def check_setting(declaration: Setting, value: Any) -> None:
         return
     if expected is tuple:
         parts = tuple(value) if isinstance(value, (tuple, list)) else ()
-        accepted = len(parts) == len(declaration.default) and all(
-            isinstance(part, int) and not isinstance(part, bool) for part in parts)
+        accepted = (len(parts) == declaration.length if declaration.length else
+                    len(parts) > 0) and all(
+            isinstance(part, (int, declaration.items)) and not isinstance(part, bool)
+            for part in parts)
         values = parts
     else:
         # bool is an int in Python; an int is a fine float; neither is accepted the other way.
@@ -136,8 +164,9 @@ def check_setting(declaration: Setting, value: Any) -> None:
             accepted = isinstance(value, (int, float)) and not isinstance(value, bool)
         values = (value,)
     if not accepted and expected is tuple:
-        raise InputError(f'{name}: {value!r} is not {len(declaration.default)} integers '
-                         f'({declaration.metavar})')
+        count = declaration.length or 'one or more'
+        items = 'integers' if declaration.items is int else 'numbers'
+        raise InputError(f'{name}: {value!r} is not {count} {items} ({declaration.metavar})')
     if not accepted:
         raise InputError(f'{name}: {value!r} is not of type {expected.__name__}')
     low, high = declaration.limits or (None, None)
