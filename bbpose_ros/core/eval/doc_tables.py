@@ -61,6 +61,10 @@ REPORT_COMMANDS = {
     'bench_graph': f'{_BENCH} --graph --duration 120',
     'bench_graph_stream': f'{_BENCH} --graph --duration 120 --param tracking:=true '
                           '--param tracking_stream:=true',
+    'bench_graph_stream_map': 'bbpose bench --dataset out/map_check/scenes --inference-threads 1 '
+                              '--graph --duration 60 --param tracking:=true --param '
+                              'tracking_stream:=true --param fixed_frame:=world (after make '
+                              'map-check)',
     # Paced replays, per-frame against stream mode (the Makefile's stream-check target).
     **{f'stream_{bag}_{run}': 'make stream-check' for bag in ('path', 'dev')
        for run in ('perframe', 'stream', 'compare')},
@@ -303,7 +307,9 @@ TABLES = {
                 '{:.0f}'),
          Column('RSS growth (%)', ('node.rss_growth_percent',), '{:+.1f}')),
         (('30 Hz for 120 s, per frame', 'bench_graph'),
-         ('30 Hz for 120 s, stream mode', 'bench_graph_stream'))),
+         ('30 Hz for 120 s, stream mode', 'bench_graph_stream'),
+         ('30 Hz for 60 s, stream mode, `fixed_frame` (the map; dev scenes with camera TF)',
+          'bench_graph_stream_map'))),
     'performance_stream': RunsTable(
         'docs/performance.md',
         (Column('answered / sent', ('frames.answered', 'frames.sent'), '{:.0f}'),
