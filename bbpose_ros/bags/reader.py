@@ -35,6 +35,7 @@ from bbpose_ros.core.data.image_encoding import decode_image
 from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.camera_info import camera_model, Rectifier
+from bbpose_ros.core.geometry.rigid import transform_matrix
 from bbpose_ros.core.util.errors import InputError
 
 
@@ -107,7 +108,7 @@ def read_bag_frames(path: Path | str, image_topic: str = topics.IMAGE_TOPIC,
                 for transform in message.transforms:
                     if transform.header.frame_id == topics.FIXED_FRAME:
                         cameras[(stamp_to_ns(transform.header.stamp), transform.child_frame_id)] \
-                            = topics.matrix_from_transform(transform.transform)
+                            = transform_matrix(transform.transform)
                 continue
             if connection.topic == topics.SCENE_TOPIC:
                 scenes[stamp_to_ns(message.stamp)] = message.frame_id

@@ -94,15 +94,6 @@ def transform_message(stamp_ns: int, parent: str, child: str,
     return types[TF_TYPE](transforms=[stamped])
 
 
-def matrix_from_transform(transform: Any) -> np.ndarray:
-    """(4, 4) parent_from_child of a geometry_msgs/Transform (metres)."""
-    q, t = transform.rotation, transform.translation
-    matrix = np.eye(4)
-    matrix[:3, :3] = quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w]))
-    matrix[:3, 3] = [t.x, t.y, t.z]
-    return matrix
-
-
 def pose_from_message(message: Any) -> tuple[np.ndarray, np.ndarray]:
     """(rotation (3, 3), translation (3,) metres) of a PoseStamped."""
     q = message.pose.orientation

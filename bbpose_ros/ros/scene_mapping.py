@@ -59,8 +59,7 @@ from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.geometry.rigid import rigid_matrix
-from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.geometry.rigid import transform_matrix
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.object_map import MapObject, ObjectMap
 from bbpose_ros.core.scene.transform_buffer import TransformBuffer, TransformUnavailable
@@ -208,9 +207,7 @@ class SceneMapping:
                                                         header.stamp, Duration(seconds=TF_WAIT_S))
             except tf2_ros.TransformException as err:
                 raise TransformUnavailable(str(err)) from err
-            t, q = stamped.transform.translation, stamped.transform.rotation
-            return rigid_matrix(quat_wxyz_to_matrix(xyzw_to_wxyz([q.x, q.y, q.z, q.w])),
-                                [t.x, t.y, t.z])
+            return transform_matrix(stamped.transform)
         deadline = time.monotonic() + TF_WAIT_S
         while True:
             if self._buffer is None:

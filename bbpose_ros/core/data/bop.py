@@ -32,7 +32,7 @@ import numpy.typing as npt
 from bbpose_ros.core.data.models import fallback_object_name, load_bop_models, MM_TO_M, \
     object_names, ObjectModel
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
-from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
+from bbpose_ros.core.geometry.rigid import invert_rigid, is_rigid, rigid_matrix
 from bbpose_ros.core.geometry.rotations import nearest_rotation
 from bbpose_ros.core.util.errors import InputError
 
@@ -159,12 +159,11 @@ def _camera_pose(record, scene_dir, image_id):
     path, where = scene_dir / 'scene_camera.json', f'image {image_id}'
     rotation = _field(record, 'cam_R_w2c', path, where, (3, 3))
     translation = _field(record, 'cam_t_w2c', path, where, (3,)) * MM_TO_M
-    if not (np.all(np.isfinite(rotation)) and np.all(np.isfinite(translation))) or not \
-            np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or \
-            np.linalg.det(rotation) < 0:
+    camera_from_world = rigid_matrix(rotation, translation)
+    if not is_rigid(camera_from_world, tolerance=1e-4):
         raise InputError(f'{path}: {where} has a cam_R_w2c / cam_t_w2c that is not a finite '
                          'rigid transform')
-    return invert_rigid(rigid_matrix(rotation, translation))
+    return invert_rigid(camera_from_world)
 
 
 def bop_camera_fields(world_from_camera: np.ndarray) -> dict[str, list[float]]:

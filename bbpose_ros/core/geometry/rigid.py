@@ -21,8 +21,12 @@ maps a point's camera coordinates to its world coordinates, x_world = R @ x_came
 Translations are in metres.
 """
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
+
+from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
 
 
 def rigid_matrix(rotation: npt.ArrayLike, translation: npt.ArrayLike) -> np.ndarray:
@@ -31,6 +35,17 @@ def rigid_matrix(rotation: npt.ArrayLike, translation: npt.ArrayLike) -> np.ndar
     matrix[:3, :3] = rotation
     matrix[:3, 3] = translation
     return matrix
+
+
+def rigid_from_xyzw(translation: npt.ArrayLike, rotation_xyzw: npt.ArrayLike) -> np.ndarray:
+    """Make the (4, 4) transform of a translation (3,) and a ROS-order quaternion (x, y, z, w)."""
+    return rigid_matrix(quat_wxyz_to_matrix(xyzw_to_wxyz(rotation_xyzw)), translation)
+
+
+def transform_matrix(transform: Any) -> np.ndarray:
+    """(4, 4) parent_from_child of a geometry_msgs/Transform (any object of its fields)."""
+    t, q = transform.translation, transform.rotation
+    return rigid_from_xyzw([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
 
 
 def invert_rigid(transform: npt.ArrayLike) -> np.ndarray:

@@ -45,8 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_matrix
-from bbpose_ros.core.geometry.rotations import quat_wxyz_to_matrix, xyzw_to_wxyz
+from bbpose_ros.core.geometry.rigid import invert_rigid, rigid_from_xyzw
 from bbpose_ros.core.util.errors import InputError
 
 QUATERNION_TOLERANCE = 1e-2     # |x^2 + y^2 + z^2 + w^2 - 1| above this: refused
@@ -70,7 +69,7 @@ class _Link:
     def at(self, stamp_ns: int, child: str) -> np.ndarray:
         """(4, 4) parent_from_child at ``stamp_ns`` (0: the newest sample)."""
         if self.static or stamp_ns == 0:
-            return _matrix(self.translations[-1], self.quaternions[-1])
+            return rigid_from_xyzw(self.translations[-1], self.quaternions[-1])
         if not self.stamps[0] <= stamp_ns <= self.stamps[-1]:
             direction = 'past' if stamp_ns < self.stamps[0] else 'future'
             raise TransformUnavailable(
@@ -79,12 +78,12 @@ class _Link:
                 f'to {self.stamps[-1] * 1e-9:.3f} s)')
         right = bisect.bisect_left(self.stamps, stamp_ns)
         if self.stamps[right] == stamp_ns:
-            return _matrix(self.translations[right], self.quaternions[right])
+            return rigid_from_xyzw(self.translations[right], self.quaternions[right])
         left = right - 1
         share = (stamp_ns - self.stamps[left]) / (self.stamps[right] - self.stamps[left])
         translation = (1 - share) * self.translations[left] + share * self.translations[right]
-        return _matrix(translation, _slerp(self.quaternions[left], self.quaternions[right],
-                                           share))
+        quaternion = _slerp(self.quaternions[left], self.quaternions[right], share)
+        return rigid_from_xyzw(translation, quaternion)
 
 
 class TransformBuffer:
@@ -195,10 +194,6 @@ class TransformBuffer:
         for frame in frames:
             transform = self._links[frame].at(stamp_ns, frame) @ transform
         return transform
-
-
-def _matrix(translation, quaternion_xyzw):
-    return rigid_matrix(quat_wxyz_to_matrix(xyzw_to_wxyz(quaternion_xyzw)), translation)
 
 
 def _slerp(q0, q1, share):
