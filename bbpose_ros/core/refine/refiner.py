@@ -51,6 +51,7 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import newton_update, start_prior
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
+from bbpose_ros.core.util.declarations import check_settings, setting
 from bbpose_ros.core.util.errors import InputError
 
 # A pose with fewer valid correspondence lines in an iteration stops: 'too_few_lines'.
@@ -58,73 +59,70 @@ LOCAL_COLORS_MAX_SCALE = 2  # local colour models serve the finer scales (pixels
 MIN_LINES = 6
 
 
+def _positive(value: float | tuple[float, ...]) -> str | None:
+    """Return why a number (or a tuple's smallest) is refused, not > 0; None: accepted."""
+    smallest = min(value) if isinstance(value, tuple) else value
+    return None if smallest > 0 else f'{smallest} is not > 0'
+
+
 @dataclass(frozen=True)
 class RefinerConfig:
     """
-    The method's constants of the region-based refinement.
+    The method's constants of the region-based refinement, declared as settings are.
 
-    What a user sets are the PipelineOptions' ``refine_*`` settings (``refine_poses``).
+    What a user sets are the PipelineOptions' ``refine_*`` settings (``refine_poses``);
+    these constants are the method's, set by tests and experiments. Each field's
+    description is in its declaration.
 
-    Attributes:
-        scales: segment size in pixels, per correspondence iteration (the last repeats).
-        standard_deviations: expected contour error in pixels per iteration: it weights the
-            lines against the Tikhonov damping (larger: smaller, safer steps).
-        iterations: correspondence iterations; each re-projects the lines and computes
-            their distributions.
-        newton_steps: pose updates per correspondence iteration.
-        tikhonov_rotation: damping of the rotation step (per radian squared).
-        tikhonov_translation: damping of the translation step (per metre squared).
-        histogram_rate: after each correspondence iteration the colour histograms move this
-            far towards those seen at the current pose (0: keep the initial ones).
-        min_continuous_px: a line needs this many pixels of uninterrupted foreground and
-            background on both sides of its contour point (in pixels at every scale).
-        mask_weight: for a pose refined with a predicted foreground mask, how much the
-            mask counts against the colours (0..1, 1: the mask alone; see
-            ``region_modality``).
-        keep_better_start: give back the start of a pose whose score the refinement
-            lowered (the score is measured at the start too, one pass more).
-        screening_iterations: of a detection with several candidates (``PoseRefiner``),
-            each is refined this many iterations and only the best-scored continues (at
-            least ``iterations``: every candidate is refined to the end). The shipped 6 is
-            the whole scale schedule once (6, 4, 2, 1) and two more at the finest scale, by
-            which a wrong start shows. Screening needs ``histogram_rate`` 1 (colours
-            re-measured in full), under which it gives the same pose as refining the chosen
-            candidate in one run, unless a start was given back (keep_better_start, or the
-            mask merit) or no colours can be measured at the pose it reached (then it ends
-            as 'outside_image'); with another rate every candidate is refined to the end.
+    Screening (``screening_iterations``) needs ``histogram_rate`` 1 (colours re-measured in
+    full), under which it gives the same pose as refining the chosen candidate in one run,
+    unless a start was given back (``keep_better_start``, or the mask merit) or no colours
+    can be measured at the pose it reached (then it ends as 'outside_image'); with another
+    rate every candidate is refined to the end. The shipped 6 is the whole scale schedule
+    once (6, 4, 2, 1) and two more at the finest scale, by which a wrong start shows.
+
+    Raises:
+        InputError: 'name: reason' for the first value it does not take.
 
     """
 
-    scales: tuple[int, ...] = (6, 4, 2, 1)
-    standard_deviations: tuple[float, ...] = (15.0, 5.0, 3.5, 1.5)
-    iterations: int = 20
-    newton_steps: int = 2
-    tikhonov_rotation: float = 1000.0
-    tikhonov_translation: float = 30000.0
-    histogram_rate: float = 1.0
-    min_continuous_px: float = 3.0
-    mask_weight: float = 1.0
-    keep_better_start: bool = True
-    screening_iterations: int = 6
+    scales: tuple[int, ...] = setting(
+        (6, 4, 2, 1), 'Segment size in pixels per correspondence iteration (the last '
+        'repeats).', low=1, metavar='PX,...')
+    standard_deviations: tuple[float, ...] = setting(
+        (15.0, 5.0, 3.5, 1.5), 'Expected contour error in pixels per iteration (the last '
+        'repeats): it weights the lines against the damping (larger: smaller, safer steps).',
+        metavar='PX,...', check=_positive)
+    iterations: int = setting(
+        20, 'Correspondence iterations; each re-projects the lines and measures their '
+        'distributions.', low=1)
+    newton_steps: int = setting(2, 'Pose updates per correspondence iteration.', low=1)
+    tikhonov_rotation: float = setting(
+        1000.0, 'Damping of the rotation step, per radian squared (> 0: it keeps every '
+        'Newton step solvable, also for a pose without lines).', check=_positive)
+    tikhonov_translation: float = setting(
+        30000.0, 'Damping of the translation step, per metre squared (> 0, as the '
+        "rotation's).", check=_positive)
+    histogram_rate: float = setting(
+        1.0, 'How far the colour histograms move after each correspondence iteration '
+        'towards those seen at the current pose (0: keep the initial ones).',
+        low=0.0, high=1.0)
+    min_continuous_px: float = setting(
+        3.0, 'Pixels of uninterrupted foreground and background a line needs on both sides '
+        'of its contour point (at every scale).', low=0.0)
+    mask_weight: float = setting(
+        1.0, 'For a pose refined with a predicted foreground mask, how much the mask counts '
+        'against the colours (1: the mask alone; see region_modality).', low=0.0, high=1.0)
+    keep_better_start: bool = setting(
+        True, 'Give back the start of a pose whose score the refinement lowered (the score '
+        'is measured at the start too, one pass more).')
+    screening_iterations: int = setting(
+        6, 'Of a detection with several candidates, each is refined this many iterations '
+        'and only the best-scored continues (at least iterations: every candidate is '
+        'refined to the end).', low=1)
 
     def __post_init__(self) -> None:
-        if not self.scales or min(self.scales) < 1:
-            raise InputError(f'refinement scales must be integers >= 1, got {self.scales}')
-        if len(self.standard_deviations) == 0 or not min(self.standard_deviations) > 0:
-            raise InputError('refinement standard deviations must be > 0, got '
-                             f'{self.standard_deviations}')
-        if self.iterations < 1 or self.newton_steps < 1:
-            raise InputError('refinement needs at least one iteration and one Newton step')
-        if not (self.tikhonov_rotation > 0 and self.tikhonov_translation > 0):
-            raise InputError('Tikhonov damping must be > 0 (it keeps every Newton step '
-                             'solvable, also for a pose without lines)')
-        if not 0.0 <= self.histogram_rate <= 1.0:
-            raise InputError(f'histogram_rate must be in [0, 1], got {self.histogram_rate}')
-        if not 0.0 <= self.mask_weight <= 1.0:
-            raise InputError(f'mask_weight must be in [0, 1], got {self.mask_weight}')
-        if self.screening_iterations < 1:
-            raise InputError('screening_iterations must be >= 1, got '
-                             f'{self.screening_iterations}')
+        check_settings(self)
 
 
 def prior_information(options: PipelineOptions) -> tuple[float, float]:

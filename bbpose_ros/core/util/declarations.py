@@ -105,7 +105,8 @@ class Setting:
 
 _TYPES = {'bool': bool, 'int': int, 'float': float, 'str': str}
 # {spelling: (type of items, number of items or None: one or more)} of the tuple settings.
-_TUPLES = {'tuple[int, int]': (int, 2), 'tuple[float, ...]': (float, None)}
+_TUPLES = {'tuple[int, int]': (int, 2), 'tuple[int, ...]': (int, None),
+           'tuple[float, ...]': (float, None)}
 
 
 def declared(settings_class: Any) -> dict[str, Setting]:

@@ -37,7 +37,7 @@ refused rather than mixing two objects' files.
 """
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from functools import cached_property
 import json
 from pathlib import Path
@@ -47,31 +47,30 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bbpose_ros.core.add_object.settings import AddedObject, AddObjectSettings
 from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.fingerprints import sha256_of_arrays
-from bbpose_ros.core.data.mesh_check import CheckedMesh, MM_TO_M, write_bop_model
+from bbpose_ros.core.data.mesh_check import write_bop_model
 from bbpose_ros.core.data.models import (load_bop_models, load_models_info, NAMES_FILE,
                                          object_names)
 from bbpose_ros.core.inference.int8_graphs import file_sha256, int8_graph_path
 from bbpose_ros.core.inference.weights import load_network, save_weights
 from bbpose_ros.core.pipeline.loader import PipelineFiles, WeightFiles
+from bbpose_ros.core.pipeline.overlays import tile_grid
 from bbpose_ros.core.synth.crop_scenes import CROP_SYNTH_CONFIG, CropScenes
 from bbpose_ros.core.synth.export import camera_json, draw_preview
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
-from bbpose_ros.core.training.cache import build_cache, SHARD_SIZE, TrainingCache
-from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache, SHARD_SIZE as \
-    CROP_SHARD_SIZE
-from bbpose_ros.core.training.object_rows import fit_new_rows, RowTraining, with_objects
-from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
-                                                   quantize_network)
+from bbpose_ros.core.training.cache import build_cache, TrainingCache
+from bbpose_ros.core.training.crop_cache import build_crop_cache, CropCache
+from bbpose_ros.core.training.object_rows import fit_new_rows, with_objects
+from bbpose_ros.core.training.quantization import write_int8_graphs
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings)
 from bbpose_ros.core.training.staged_folder import StagedFolder
-from bbpose_ros.core.util.declarations import check_settings, nested, setting
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.files import atomic_output, write_json_atomic
+from bbpose_ros.core.util.files import atomic_output, write_json_atomic, write_rgb_png
 
 NETWORKS = ('detector', 'qnet', 'dense')
 # Rolls of the rendered objects about the optical axis, degrees: upright objects seen by a
@@ -80,80 +79,8 @@ INPLANE_RANGE_DEG = (-60.0, 60.0)
 # Per-side box jitter / box size of the rendered crops (the detector's errors).
 CROP_BOX_SIGMA = 0.06
 CALIBRATION_FRAMES = 32
-CALIBRATION_CROPS = 256
-
-
-@dataclass(frozen=True)
-class AddObjectSettings:
-    """
-    How much to render and train (recorded in ``report.json``).
-
-    Besides its settings, the RowTraining of each network: ``detector`` (its heatmap
-    channel), ``qnet`` (its head) and ``dense`` (its output channels).
-
-    Raises:
-        InputError: 'name: reason' for the first value it does not take.
-
-    """
-
-    scenes: int = setting(500, 'Table-top scenes rendered for the detector.', low=1)
-    crops: int = setting(8000, 'Crops rendered for Q-Net and the dense net.', low=1)
-    detector: RowTraining = nested(lambda: RowTraining(steps=1000, passes=2))
-    qnet: RowTraining = nested(lambda: RowTraining(steps=2000, passes=3, seeds=3))
-    dense: RowTraining = nested(lambda: RowTraining(steps=1500, passes=1))
-    seed: int = setting(101, 'Seed of the renders and draws.')
-    workers: int = setting(2, 'Rendering processes.', low=1)
-    scene_shard: int = setting(
-        SHARD_SIZE, 'Scenes per cache shard (renders resume shard by shard).', low=1)
-    crop_shard: int = setting(CROP_SHARD_SIZE, 'Crops per cache shard.', low=1)
-    held_out: float = setting(
-        0.1, 'Share of the renders kept for the figures in report.json.', low=0.0, high=1.0)
-
-    def __post_init__(self) -> None:
-        check_settings(self)
-
-
-@dataclass(frozen=True)
-class AddedObject:
-    """
-    The object to add.
-
-    Attributes:
-        name: its name (topics ``~/<name>/pose``, the ``objects`` parameter).
-        mesh: the checked mesh (``mesh_check.check_mesh``).
-        symmetries: (K, 4, 4) BOP ``symmetries_discrete`` (translation in mm), the
-            identity not included; (0, 4, 4) for none.
-
-    """
-
-    name: str
-    mesh: CheckedMesh
-    symmetries: np.ndarray
-
-
-def axis_symmetries(mesh: CheckedMesh, axis: str, fold: int) -> np.ndarray:
-    """
-    (fold - 1, 4, 4) BOP symmetries: turns by 360 / ``fold`` deg about a model axis.
-
-    The axis (``'x'``, ``'y'`` or ``'z'``) runs through the centre of the mesh's box; the
-    matrices map model points to model points in millimetres, as BOP writes them.
-    """
-    if axis not in ('x', 'y', 'z') or fold < 2:
-        raise InputError(f'a symmetry is AXIS:FOLD with AXIS x, y or z and FOLD >= 2, got '
-                         f'{axis}:{fold}')
-    centre = (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0)) / 2 / MM_TO_M
-    k = 'xyz'.index(axis)
-    matrices = []
-    for turn in range(1, fold):
-        angle = 2 * np.pi * turn / fold
-        rotation = np.eye(3)
-        i, j = [a for a in range(3) if a != k]
-        rotation[[i, i, j, j], [i, j, i, j]] = (np.cos(angle), -np.sin(angle), np.sin(angle),
-                                                np.cos(angle))
-        matrix = np.eye(4)
-        matrix[:3, :3], matrix[:3, 3] = rotation, centre - rotation @ centre
-        matrices.append(matrix)
-    return np.array(matrices)
+# preview.png's rendered scenes, each shrunk to (width, height) pixels.
+PREVIEW_TILE = (320, 240)
 
 
 class AddObject:
@@ -321,15 +248,8 @@ class AddObject:
 
     def _int8(self):
         """Write the detector's and Q-Net's int8 graphs, calibrated on the scene renders."""
-        cache = TrainingCache(self.out / 'renders' / 'scenes')
-        frames = calibration_images(cache.images, self.base['detector'].config.input_size,
-                                    CALIBRATION_FRAMES)
-        quantize_network(self.out / 'detector.pt', 'detector', (frames,),
-                         int8_graph_path(self.out / 'detector.pt'), 'bbpose add-object')
-        qnet = load_network(self.out / 'qnet.pt', 'qnet')
-        crops = calibration_crops(cache, qnet.config, CALIBRATION_CROPS, self.settings.seed)
-        quantize_network(self.out / 'qnet.pt', 'qnet', crops,
-                         int8_graph_path(self.out / 'qnet.pt'), 'bbpose add-object')
+        write_int8_graphs(self.out, TrainingCache(self.out / 'renders' / 'scenes'),
+                          CALIBRATION_FRAMES, self.settings.seed, 'bbpose add-object')
 
     def _preview(self):
         """Write ``preview.png``: 4 rendered scenes with boxes over 16 crops at Q-Net's size."""
@@ -338,9 +258,7 @@ class AddObject:
             images = [draw_preview(scenes.sample(k)) for k in range(4)]
         finally:
             scenes.close()
-        height, width = 240, 320
-        top = np.concatenate([cv2.resize(i, (width, height), interpolation=cv2.INTER_AREA)
-                              for i in images], axis=1)
+        top = tile_grid(images, len(images), PREVIEW_TILE)
         crops = CropCache(self.out / 'renders' / 'crops')
         size = self.base['qnet'].config.crop_size
         picked = crops.crop[:16]
@@ -349,10 +267,7 @@ class AddObject:
         strip = np.concatenate([cv2.resize(c, (side, side), interpolation=cv2.INTER_NEAREST)
                                 for c in small], axis=1)
         strip = np.pad(strip, ((0, 0), (0, top.shape[1] - strip.shape[1]), (0, 0)))
-        sheet = np.concatenate([top, strip], axis=0)
-        png = cv2.imencode('.png', cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))[1]
-        with atomic_output(self.out / 'preview.png') as tmp:
-            tmp.write_bytes(png.tobytes())
+        write_rgb_png(self.out / 'preview.png', np.concatenate([top, strip], axis=0))
 
     def pipeline_files(self) -> PipelineFiles:
         """Return what the node loads from the output folder (``output_files``)."""
