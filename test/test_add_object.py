@@ -29,17 +29,18 @@ import yaml
 from bbpose_ros.bags import topics
 from bbpose_ros.cli.add_object import base_weight_files, write_params
 from bbpose_ros.cli.graph.replay import NodeProcess
+from bbpose_ros.core.add_object.add_object_settings import (AddedObject, AddObjectSettings,
+                                                            axis_symmetries)
+from bbpose_ros.core.add_object.add_object_stages import (AddObject, INPLANE_RANGE_DEG,
+                                                          NETWORKS, output_files)
 from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.mesh_check import check_mesh
 from bbpose_ros.core.data.models import load_bop_models
 from bbpose_ros.core.inference.weights import load_network, WEIGHTS_DIR
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
-from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
-                                                        AddObjectSettings, axis_symmetries,
-                                                        INPLANE_RANGE_DEG, NETWORKS,
-                                                        output_files)
-from bbpose_ros.core.training.object_rows import RowTraining, with_objects
+from bbpose_ros.core.training.object_rows import with_objects
+from bbpose_ros.core.training.settings import RowTraining
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros.conversions import rgb_to_image
 from bbpose_ros.ros.params import check_value

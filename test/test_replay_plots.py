@@ -21,6 +21,7 @@ from bbpose_ros.core.eval import plots
 from bbpose_ros.core.eval.instance_scores import score_frame, summarize_objects
 from bbpose_ros.core.pipeline import overlays
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.util.files import write_rgb_png
 
 
 def test_charts_and_overlays_are_written(lmo_frames, lmo_models, tmp_path):
@@ -39,7 +40,7 @@ def test_charts_and_overlays_are_written(lmo_frames, lmo_models, tmp_path):
     image = frame.load_image()
     debug = overlays.draw_estimates(image, frame.camera, lmo_models, exact)
     truths = [(i.object_name, i.rotation, i.translation) for i in counted]
-    overlays.write_image(tmp_path / 'overlay.png', overlays.draw_comparison(
+    write_rgb_png(tmp_path / 'overlay.png', overlays.draw_comparison(
         image, frame.camera, lmo_models, truths, truths))
     assert debug.shape == image.shape and not np.array_equal(debug, image)
     for name in ('curves.png', 'bars.png', 'overlay.png'):

@@ -17,7 +17,7 @@
 
 The mesh is checked as ``bbpose check-mesh`` checks it; the shipped networks (or those of
 ``--base-weights``) get one more object, trained on table-top renders with everything they
-already know frozen (``core.training.add_object_stages``). ``bbpose remove-object`` drops an
+already know frozen (``core.add_object``). ``bbpose remove-object`` drops an
 object's rows instead: the base of a leave-one-out measurement.
 """
 
@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bbpose_ros.cli.common import add_dataset_argument, add_mesh_arguments
-from bbpose_ros.cli.settings_options import settings_made
+from bbpose_ros.cli.settings_options import add_settings_options, settings_made
+from bbpose_ros.core.add_object.add_object_settings import AddObjectSettings
 from bbpose_ros.core.util.errors import InputError
 
 if TYPE_CHECKING:
@@ -63,12 +64,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add.add_argument('--backgrounds', type=Path, nargs='+', default=None, metavar='DIR',
                      help='folders of photographs for the backgrounds of the renders (`make '
                           'photos`; default: procedural textures only)')
-    add.add_argument('--scenes', type=int, default=None,
-                     help='table-top scenes to render for the detector (default 500)')
-    add.add_argument('--crops', type=int, default=None,
-                     help='crops to render for Q-Net and the dense net (default 8000)')
-    add.add_argument('--seed', type=int, default=None, help='seed of renders and training')
-    add.add_argument('--workers', type=int, default=2, help='rendering processes')
+    add_settings_options(add, AddObjectSettings, 'renders and training (recorded in report.json)',
+                         names=('scenes', 'crops', 'seed', 'workers'), show_defaults=True)
     add.add_argument('--keep-renders', action='store_true',
                      help='keep renders/ (the training renders, hundreds of MB) when done')
     add.add_argument('--threads', type=int, default=None,
@@ -116,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
     from bbpose_ros.core.data.mesh_check import check_mesh
     from bbpose_ros.core.data.models import check_names
     from bbpose_ros.core.synth.backgrounds import PhotoBackgrounds
-    from bbpose_ros.core.training.add_object_stages import (AddedObject, AddObject,
-                                                            AddObjectSettings, axis_symmetries)
+    from bbpose_ros.core.add_object.add_object_settings import AddedObject, axis_symmetries
+    from bbpose_ros.core.add_object.add_object_stages import AddObject
     check_names({1: args.name}, '--name')
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -130,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         if not fold.isdigit():
             raise InputError(f'--symmetry is AXIS:FOLD, e.g. z:2, got {args.symmetry!r}')
         symmetries = axis_symmetries(mesh, axis, int(fold))
-    settings = settings_made(AddObjectSettings, args)     # --scenes, --crops, --seed, --workers
+    settings = settings_made(AddObjectSettings, args)
     backgrounds = PhotoBackgrounds.from_folders(args.backgrounds) if args.backgrounds else None
     task = AddObject(AddedObject(args.name, mesh, symmetries),
                      base_weight_files(args.base_weights), args.dataset, args.out, settings,

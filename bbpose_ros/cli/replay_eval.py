@@ -57,7 +57,7 @@ from bbpose_ros.core.eval.tables import format_report
 from bbpose_ros.core.eval.video import check_video_path, write_video
 from bbpose_ros.core.pipeline import overlays
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.files import write_json_atomic
+from bbpose_ros.core.util.files import write_json_atomic, write_rgb_png
 from bbpose_ros.ros.params import resolve_dataset_dir
 from bbpose_ros.ros.params_file import read_params_file
 
@@ -147,7 +147,7 @@ def write_plots(folder: Path, frames: Sequence[BagFrame], recording: Recording,
                   for i in ground_truth_instances(frame, models)]
         image = overlays.draw_comparison(frame.image_rgb, frame.camera, models, truths,
                                          recording.poses.get(frame.stamp_ns, []))
-        overlays.write_image(folder / f'overlay_{index:04d}.png', image)
+        write_rgb_png(folder / f'overlay_{index:04d}.png', image)
 
 
 def video_frames(frames: Sequence[BagFrame], recording: Recording,

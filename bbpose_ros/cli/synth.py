@@ -38,12 +38,11 @@ from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.models import load_bop_models, names_source, resolve_object_names
 from bbpose_ros.core.synth import SynthConfig, SyntheticScenes
 from bbpose_ros.core.synth.camera_path import orbit_path
-from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json, \
-    write_rgb_png
+from bbpose_ros.core.synth.export import BopSceneWriter, draw_preview, write_json
 from bbpose_ros.core.synth.table_config import TableConfig
 from bbpose_ros.core.synth.table_scenes import TableScenes
 from bbpose_ros.core.util.errors import InputError
-from bbpose_ros.core.util.files import atomic_output
+from bbpose_ros.core.util.files import atomic_output, write_rgb_png
 
 # The camera path's settings when not given: a camera's rate, a slow turn, a hand's bob.
 PATH_DEFAULTS = {'rate': 30.0, 'orbit_speed': 20.0, 'bob': 0.02}

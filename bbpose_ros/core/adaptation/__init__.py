@@ -18,5 +18,7 @@ Self-training on the user's scene: the pipeline teaches itself from unlabelled r
 Data flows one way: recorded frames (``frames``) -> the teacher's careful poses
 (``teacher``) -> the labels it trusts (``selection``) -> a pseudo-labelled training set
 (``label_set``) -> the students that learn from it (``students``); ``adapt_stages`` runs
-them into an output folder the node loads. Nothing here reads ground truth.
+them into an output folder the node loads. Nothing here reads ground truth. The sibling
+of ``add_object`` (renders of a new object instead of a recording): both fit output layers
+through ``training.head_fitting`` and write their graphs through ``training.quantization``.
 """

@@ -47,7 +47,6 @@ from pathlib import Path
 import shutil
 from typing import Any
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -63,20 +62,20 @@ from bbpose_ros.core.inference.int8_graphs import int8_graph_path
 from bbpose_ros.core.inference.options import PipelineOptions
 from bbpose_ros.core.inference.weights import load_network, read_weights, save_weights
 from bbpose_ros.core.pipeline.loader import PipelineFiles, WeightFiles
-from bbpose_ros.core.pipeline.overlays import draw_box_2d, draw_label
+from bbpose_ros.core.pipeline.overlays import draw_box_2d, draw_label, tile_grid
 from bbpose_ros.core.synth.export import BopSceneWriter, write_json
 from bbpose_ros.core.training.cache import TrainingCache
-from bbpose_ros.core.training.quantization import (calibration_crops, calibration_images,
-                                                   quantize_network)
+from bbpose_ros.core.training.quantization import write_int8_graphs
 from bbpose_ros.core.training.runs import git_commit
 from bbpose_ros.core.training.staged_folder import StagedFolder
-from bbpose_ros.core.util.files import atomic_output, write_json_atomic
+from bbpose_ros.core.util.files import atomic_output, write_json_atomic, write_rgb_png
 
 STUDENTS = ('detector', 'qnet')
 # The weight-file metadata field naming the frames a network adapted on.
 ADAPTED_ON = 'adapted_on'
 PREVIEW_FRAMES = 8
-CALIBRATION_CROPS = 256
+# preview.png: frames in rows of this many, each shrunk to (width, height) pixels.
+PREVIEW_COLUMNS, PREVIEW_TILE = 4, (320, 240)
 ACCEPTED_COLOR, REFUSED_COLOR = (0, 220, 0), (230, 40, 40)
 
 
@@ -233,13 +232,8 @@ class Adaptation:
     def _int8(self):
         """Write both students' int8 graphs, calibrated on the last round's label set."""
         cache = TrainingCache(self.out / f'round{self.settings.rounds}' / 'labels')
-        frames = calibration_images(cache.images, cache.input_size, len(cache.images))
-        quantize_network(self.out / 'detector.pt', 'detector', (frames,),
-                         int8_graph_path(self.out / 'detector.pt'), 'bbpose adapt')
-        qnet = load_network(self.out / 'qnet.pt', 'qnet')
-        crops = calibration_crops(cache, qnet.config, CALIBRATION_CROPS, self.settings.seed)
-        quantize_network(self.out / 'qnet.pt', 'qnet', crops,
-                         int8_graph_path(self.out / 'qnet.pt'), 'bbpose adapt')
+        write_int8_graphs(self.out, cache, len(cache.images), self.settings.seed,
+                          'bbpose adapt')
 
     def _pseudo_labels(self):
         """Write the last round's accepted labels as a BOP dataset folder."""
@@ -273,13 +267,8 @@ class Adaptation:
                                                    else f' ({verdict.verdict})')
                 draw_box_2d(image, verdict.pose.box_uv, color, 2)
                 draw_label(image, text, verdict.pose.box_uv, color)
-            tiles.append(cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA))
-        while len(tiles) % 4:
-            tiles.append(np.zeros_like(tiles[0]))
-        rows = [np.concatenate(tiles[k:k + 4], axis=1) for k in range(0, len(tiles), 4)]
-        png = cv2.imencode('.png', cv2.cvtColor(np.concatenate(rows), cv2.COLOR_RGB2BGR))[1]
-        with atomic_output(self.out / 'preview.png') as tmp:
-            tmp.write_bytes(png.tobytes())
+            tiles.append(image)
+        write_rgb_png(self.out / 'preview.png', tile_grid(tiles, PREVIEW_COLUMNS, PREVIEW_TILE))
 
     def pipeline_files(self) -> PipelineFiles:
         """Return what the node loads from the output folder: the adapted weight files."""

@@ -39,7 +39,6 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 import torch.nn.functional as F
-from tqdm import tqdm
 
 from bbpose_ros.core.adaptation.label_set import IgnoreRegions
 from bbpose_ros.core.data.models import ObjectModel
@@ -49,7 +48,7 @@ from bbpose_ros.core.training.cache import TrainingCache
 from bbpose_ros.core.training.detector_training import (DetectorBatches,
                                                         DetectorTrainSettings, focal_loss,
                                                         to_input_pixels)
-from bbpose_ros.core.training.loop import cosine_lr
+from bbpose_ros.core.training.head_fitting import cache_features, fit_tensors
 from bbpose_ros.core.training.object_rows import fit_new_rows
 from bbpose_ros.core.training.qnet_training import QNetTrainSettings
 from bbpose_ros.core.training.settings import HeadTraining, RowTraining
@@ -104,22 +103,20 @@ def adapt_detector(network: CenterBoxNet, cache: TrainingCache, regions: IgnoreR
     batches = DetectorBatches(cache, network.config, settings, seed)
     network.eval()
     scenes = np.arange(len(cache.images))
-    parts = []
-    with torch.inference_mode():
-        chunks = [scenes[i:i + 4] for i in range(0, len(scenes), 4)]
-        for copy in tqdm(range(training.passes), desc='detector features', unit='pass',
-                         disable=not progress):
-            for chunk in chunks:
-                images, heat, sides, weight = batches.make(chunk, 0.0 if copy == 0 else 1.0)
-                parts.append((network.features(images).to(torch.float16), heat, sides,
-                              weight, ignore_mask(regions, chunk, network, cache)))
-    features, heat, sides, weight, counted = (torch.cat(column) for column in zip(*parts))
+
+    def encode(chunk, copy):
+        images, heat, sides, weight = batches.make(chunk, 0.0 if copy == 0 else 1.0)
+        return (network.features(images), heat, sides, weight,
+                ignore_mask(regions, chunk, network, cache))
+
+    chunks = [scenes[i:i + 4] for i in range(0, len(scenes), 4)]
+    features, heat, sides, weight, counted = cache_features(encode, chunks, training.passes,
+                                                            progress)
     start = [p.detach().clone() for p in (network.heatmap.weight, network.heatmap.bias,
                                           network.box.weight, network.box.bias)]
-    params = [p.clone().requires_grad_(learns) for p, learns in zip(
-        start, (training.heatmap == 'all', training.heatmap != 'none', True, True))]
+    learns = (training.heatmap == 'all', training.heatmap != 'none', True, True)
 
-    def loss_of(pick, with_anchor=True):
+    def loss_of(params, pick, with_anchor=True):
         x = features[pick].float()
         heat_logits = F.conv2d(x, params[0], params[1])
         box_log = F.conv2d(x, params[2], params[3])
@@ -134,23 +131,11 @@ def adapt_detector(network: CenterBoxNet, cache: TrainingCache, regions: IgnoreR
 
     first = torch.arange(len(scenes))
     with torch.no_grad():
-        before = float(loss_of(first, False))
-    optimizer = torch.optim.Adam([p for p in params if p.requires_grad], training.lr)
-    rng = np.random.default_rng(seed)
-    bar = tqdm(range(training.steps), desc='detector heads', unit='step',
-               disable=not progress)
-    for step in bar:
-        for group in optimizer.param_groups:
-            group['lr'] = cosine_lr(training.lr, step, training.steps, training.warmup)
-        pick = torch.from_numpy(rng.choice(len(features), min(training.batch, len(features)),
-                                           replace=False))
-        loss = loss_of(pick)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        bar.set_postfix(loss=f'{float(loss.detach()):.4f}', refresh=False)
+        before = float(loss_of(start, first, False))
+    params = fit_tensors(start, learns, loss_of, len(features), training,
+                         np.random.default_rng(seed), 'detector heads', progress)
     with torch.no_grad():
-        after = float(loss_of(first, False))
+        after = float(loss_of(params, first, False))
         network.heatmap.weight.copy_(params[0])
         network.heatmap.bias.copy_(params[1])
         network.box.weight.copy_(params[2])

@@ -15,10 +15,11 @@
 """
 One new object taught to the shipped networks from its mesh alone (``bbpose add-object``).
 
-Data flows one way: the checked mesh and its symmetries (``settings.AddedObject``) -> a BOP
-dataset with the known objects and the new one -> renders of it -> each network's new rows,
-fitted on cached features with everything else frozen (``training.object_rows``) -> int8
-graphs and a preview; ``stages`` runs them into an output folder the node loads. The
-sibling of ``adaptation`` (a recording's frames instead of renders): both fit heads through
+Data flows one way: the checked mesh and its symmetries
+(``add_object_settings.AddedObject``) -> a BOP dataset with the known objects and the new
+one -> renders of it -> each network's new rows, fitted on cached features with everything
+else frozen (``training.object_rows``) -> int8 graphs and a preview; ``add_object_stages``
+runs them into an output folder the node loads. The sibling of ``adaptation`` (a
+recording's frames instead of renders): both fit output layers through
 ``training.head_fitting`` and write their graphs through ``training.quantization``.
 """

@@ -13,9 +13,10 @@
 # limitations under the License.
 
 """
-What ``bbpose add-object`` is given: the object (its checked mesh and symmetries) and how
-much to render and train (``AddObjectSettings``, declared as every setting is:
-``util.declarations``).
+What ``bbpose add-object`` is given: the object, and how much to render and train.
+
+The object is its name, checked mesh and symmetries (``AddedObject``); the renders and
+training are ``AddObjectSettings``, declared as every setting is (``util.declarations``).
 """
 
 from __future__ import annotations

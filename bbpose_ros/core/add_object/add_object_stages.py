@@ -47,7 +47,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from bbpose_ros.core.add_object.settings import AddedObject, AddObjectSettings
+from bbpose_ros.core.add_object.add_object_settings import AddedObject, AddObjectSettings
 from bbpose_ros.core.data.bop import load_camera
 from bbpose_ros.core.data.fingerprints import sha256_of_arrays
 from bbpose_ros.core.data.mesh_check import write_bop_model

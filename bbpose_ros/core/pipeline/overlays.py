@@ -23,7 +23,6 @@ Everything draws on (H, W, 3) uint8 RGB images, either in place or on a copy (th
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
@@ -125,10 +124,25 @@ def draw_comparison(image_rgb: npt.ArrayLike, camera: CameraIntrinsics,
     return canvas
 
 
-def write_image(path: Path | str, image_rgb: np.ndarray) -> None:
-    """Write an RGB image as PNG."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+def tile_grid(images_rgb: Sequence[np.ndarray], columns: int,
+              tile_size: tuple[int, int]) -> np.ndarray:
+    """
+    Lay images out in rows of ``columns``, each shrunk to ``tile_size`` (width, height).
+
+    Args:
+        images_rgb: (H, W, 3) uint8 RGB images, any sizes (at least one).
+        columns: tiles per row; the last row is filled with black tiles.
+        tile_size: (width, height) of a tile in pixels.
+
+    Returns:
+        (rows * height, columns * width, 3) uint8 RGB.
+
+    """
+    tiles = [cv2.resize(image, tuple(tile_size), interpolation=cv2.INTER_AREA)
+             for image in images_rgb]
+    tiles += [np.zeros_like(tiles[0])] * (-len(tiles) % columns)
+    return np.concatenate([np.concatenate(tiles[k:k + columns], axis=1)
+                           for k in range(0, len(tiles), columns)])
 
 
 def _point(uv):

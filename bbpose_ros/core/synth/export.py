@@ -36,6 +36,7 @@ from bbpose_ros.core.geometry.boxes import mask_box_uv
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.geometry.rigid import invert_rigid
 from bbpose_ros.core.synth.scenes import SyntheticSample
+from bbpose_ros.core.util.files import write_rgb_png
 
 
 def uv_to_bop_box(box_uv: Sequence[float] | np.ndarray) -> list[int]:
@@ -58,12 +59,6 @@ def camera_json(camera: CameraIntrinsics) -> dict[str, float]:
 def write_json(path: Path | str, data: Any) -> None:
     """Write ``data`` as indented JSON to ``path``."""
     Path(path).write_text(json.dumps(data, indent=1) + '\n')
-
-
-def write_rgb_png(path: Path | str, image_rgb: np.ndarray) -> None:
-    """Write an (H, W, 3) uint8 RGB image as PNG; a failed write is an OSError."""
-    if not cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)):
-        raise OSError(f'cannot write image {path}')
 
 
 class BopSceneWriter:

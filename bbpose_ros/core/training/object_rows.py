@@ -23,8 +23,8 @@ starts from the mean of the known objects' rows (for the detector a heatmap that
 any known object, which training then narrows to the new one). ``fit_new_rows`` trains
 just the new rows: the shared layers are frozen (batch-norm statistics included) and run
 once over the renders of the new object (``passes`` augmented copies of each), and the new
-rows then learn from those cached features, so the known objects' outputs stay bit for
-bit what they were.
+rows then learn from those cached features (``head_fitting``), so the known objects'
+outputs stay bit for bit what they were.
 
 Why rows only: the shared layers run forward once, so training takes minutes on a CPU,
 and it cannot cost the known objects any accuracy. What it cannot do: learn features the
@@ -38,7 +38,6 @@ import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
-from tqdm import tqdm
 
 from bbpose_ros.core.data.models import ObjectModel
 from bbpose_ros.core.nets.dense import DenseNet, PER_OBJECT
@@ -50,7 +49,7 @@ from bbpose_ros.core.training.dense_training import dense_loss, dense_validation
 from bbpose_ros.core.training.detector_training import (detector_validation, DetectorBatches,
                                                         focal_loss)
 from bbpose_ros.core.training.device import TrainingDevice
-from bbpose_ros.core.training.loop import cosine_lr
+from bbpose_ros.core.training.head_fitting import cache_features, fit_tensors
 from bbpose_ros.core.training.qnet_training import qnet_loss, qnet_validation, QNetBatches
 from bbpose_ros.core.training.settings import (DenseTrainSettings, DetectorTrainSettings,
                                                QNetTrainSettings, RowTraining)
@@ -226,48 +225,27 @@ def fit_new_rows(network: Network, new_objects: Sequence[str],
     new_index = np.where(is_new, np.cumsum(is_new) - 1, -1)    # rank among the new rows
     task = task_type(batches, network, new_index)
     network.eval()
-    cached = _cache_features(task, rows.passes, settings.augment_strength, progress)
+    units = task.units()
+    chunks = [units[i:i + task.chunk] for i in range(0, len(units), task.chunk)]
+    cached = cache_features(lambda chunk, copy: task.encode(chunk, settings.augment_strength),
+                            chunks, rows.passes, progress)
     layer = getattr(network, object_layer_name(network))
     width = rows_per_object(network)
     chosen = torch.from_numpy(np.concatenate([np.arange(k * width, (k + 1) * width)
                                               for k in np.flatnonzero(new_index >= 0)]))
     start = (layer.weight.detach()[chosen], layer.bias.detach()[chosen])
     apply = F.linear if isinstance(layer, nn.Linear) else F.conv2d
-    runs = [_fit_rows(task, cached, start, apply, rows, np.random.default_rng([seed, run]),
-                      progress) for run in range(rows.seeds)]
+    features, targets = cached[0], cached[1:]
+
+    def loss_of(tensors, pick):
+        return task.loss(apply(features[pick].float(), *tensors),
+                         *(part[pick] for part in targets))
+
+    runs = [fit_tensors(start, (True, True), loss_of, len(features), rows,
+                        np.random.default_rng([seed, run]), 'new rows', progress)
+            for run in range(rows.seeds)]
     weight, bias = (torch.stack(part).mean(dim=0) for part in zip(*runs))
     with torch.no_grad():
         layer.weight[chosen] = weight
         layer.bias[chosen] = bias
     return validate(network, batches, TrainingDevice('cpu'))
-
-
-def _fit_rows(task, cached, start, apply, rows, rng, progress):
-    """One Adam run of the rows ``start`` (weight, bias) on ``cached``; the trained pair."""
-    weight, bias = (part.clone().requires_grad_(True) for part in start)
-    optimizer = torch.optim.Adam([weight, bias], rows.lr)
-    size = len(cached[0])
-    bar = tqdm(range(rows.steps), desc='new rows', unit='step', disable=not progress)
-    for step in bar:
-        for group in optimizer.param_groups:
-            group['lr'] = cosine_lr(rows.lr, step, rows.steps, rows.warmup)
-        pick = torch.from_numpy(rng.choice(size, min(rows.batch, size), replace=False))
-        features, *targets = (part[pick] for part in cached)
-        loss = task.loss(apply(features.float(), weight, bias), *targets)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        bar.set_postfix(loss=f'{float(loss.detach()):.4f}', refresh=False)
-    return weight.detach(), bias.detach()
-
-
-def _cache_features(task, passes, strength, progress):
-    """Run the frozen layers over ``passes`` augmented copies of the training inputs."""
-    units = task.units()
-    chunks = [units[i:i + task.chunk] for i in range(0, len(units), task.chunk)] * passes
-    parts = []
-    with torch.inference_mode():
-        for chunk in tqdm(chunks, desc='features', unit='batch', disable=not progress):
-            features, *targets = task.encode(chunk, strength)
-            parts.append((features.to(torch.float16), *targets))
-    return [torch.cat(column) for column in zip(*parts)]

@@ -33,7 +33,7 @@ import numpy as np
 
 from bbpose_ros.core.inference.backends import export_onnx
 from bbpose_ros.core.inference.int8_graphs import (file_sha256, INPUT_NAMES, INT8_FORMAT,
-                                                   int8_kind, OUTPUT_NAMES)
+                                                   int8_graph_path, int8_kind, OUTPUT_NAMES)
 from bbpose_ros.core.inference.weights import load_network
 from bbpose_ros.core.pipeline.rotation_estimator import run_network
 from bbpose_ros.core.util.errors import InputError
@@ -42,6 +42,8 @@ from bbpose_ros.core.util.errors import InputError
 # Q-Net trains), fed in batches of this size.
 CROP_BOX_SIGMA = 0.05
 CROP_BATCH = 16
+# Q-Net calibration crops a folder's int8 graph is calibrated on (``write_int8_graphs``).
+CALIBRATION_CROPS = 256
 
 
 def calibration_images(frames: np.ndarray, input_size: tuple[int, int],
@@ -159,6 +161,26 @@ def quantize_network(weights: Path | str, network_kind: str,
     partial.write_bytes(model.SerializeToString())
     os.replace(partial, out)
     return out
+
+
+def write_int8_graphs(folder: Path | str, cache, frames: int, seed: int,
+                      command: str = '') -> None:
+    """
+    Write a folder's ``detector_int8.onnx`` and ``qnet_int8.onnx`` from its float weights.
+
+    The outputs of ``bbpose add-object`` and ``bbpose adapt`` alike: ``folder`` holds
+    ``detector.pt`` and ``qnet.pt``; the detector is calibrated on the first ``frames``
+    images of ``cache`` (a ``training.cache.TrainingCache`` at the detector's input size),
+    Q-Net on ``CALIBRATION_CROPS`` crops of its instances drawn with ``seed``.
+    """
+    folder = Path(folder)
+    images = calibration_images(cache.images, cache.input_size, frames)
+    quantize_network(folder / 'detector.pt', 'detector', (images,),
+                     int8_graph_path(folder / 'detector.pt'), command)
+    qnet = load_network(folder / 'qnet.pt', 'qnet')
+    crops = calibration_crops(cache, qnet.config, CALIBRATION_CROPS, seed)
+    quantize_network(folder / 'qnet.pt', 'qnet', crops, int8_graph_path(folder / 'qnet.pt'),
+                     command)
 
 
 def _check_inputs(network, network_kind, inputs):

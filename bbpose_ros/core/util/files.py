@@ -28,6 +28,9 @@ from pathlib import Path
 import shutil
 from typing import Any, Iterator
 
+import cv2
+import numpy as np
+
 
 @contextmanager
 def atomic_output(path: Path | str, keep_name: bool = False) -> Iterator[Path]:
@@ -76,3 +79,18 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
     else:
         path.unlink(missing_ok=True)
+
+
+def write_rgb_png(path: Path | str, image_rgb: np.ndarray) -> None:
+    """
+    Write an (H, W, 3) uint8 RGB image as a PNG file, whole or not at all (its folder made).
+
+    Raises:
+        OSError: the image cannot be encoded or written.
+
+    """
+    ok, data = cv2.imencode('.png', cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise OSError(f'cannot encode image {path} ({image_rgb.shape} {image_rgb.dtype})')
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(data.tobytes())
