@@ -195,3 +195,27 @@ def test_a_bad_transform_is_refused_and_clear_map_forgets_the_objects(graph, sce
         in_world = world_from_camera[:3, :3] @ translation + world_from_camera[:3, 3]
         mapped = topics.pose_from_message(detection.results[0].pose)[1]
         assert np.allclose(mapped, in_world, atol=1e-5)
+
+
+def test_a_frame_waits_for_the_tf_that_comes_after_it(graph, bag):
+    client, _, log = graph
+    stamp = START_NS + 3 * 3600 * 10 ** 9        # after every other test's stamps
+    first = {}
+    for topic, _, raw in BagPlayer(client.node, bag).messages():
+        first.setdefault(topic, raw)
+    image = deserialize_message(first[topics.IMAGE_TOPIC], Image)
+    info = deserialize_message(first[topics.CAMERA_INFO_TOPIC], CameraInfo)
+    tf = deserialize_message(first[topics.TF_TOPIC], TFMessage)
+    for header in [image.header, info.header, *(t.header for t in tf.transforms)]:
+        header.stamp.sec, header.stamp.nanosec = divmod(stamp, 10 ** 9)
+    log.mark()
+    client.image.publish(image)
+    client.info.publish(info)
+    assert client.spin_until(lambda: any(stamp_to_ns(m.markers[0].header.stamp) == stamp
+                                         for m in client.received[MARKERS])), log.path
+    client.spin_until(lambda: False, timeout_s=0.3)     # answered; TF is still to come
+    assert map_at(client, stamp) is None
+    client.tf.publish(tf)
+    assert client.spin_until(lambda: map_at(client, stamp) is not None), log.path
+    assert map_at(client, stamp).detections
+    assert not log.wait_for('WARN', 'no camera pose for the map', timeout_s=0.5)

@@ -115,7 +115,7 @@ class BBPoseNode(LifecycleNode):
             refuse=lambda names, text: self._problems.warn('parameters_refused', names, text),
             reason=failure_reason)
         self._outputs = FramePublishers(self)
-        self._mapping = SceneMapping(self, self._problems)
+        self._mapping = SceneMapping(self, self._problems, self.stats.count)
         self._worker = FrameWorker(lambda: self._rebuilder.pipeline, self._outputs,
                                    self.stats, self._problems, self.get_logger(), self.context,
                                    decode=lambda frame, info: self._intake.decode(frame, info),

@@ -17,12 +17,10 @@
 The node's map of the scene: TF in, each answered frame's poses fused in ``fixed_frame``.
 
 With ``fixed_frame`` set (e.g. ``world``, ``base_link``), the node keeps the camera's pose
-from ``/tf`` and ``/tf_static``: tf2_ros's buffer and listener where tf2_ros is installed,
-else ``core.scene.transform_buffer.TransformBuffer`` fed by its own subscriptions (the
-wheel venv has no tf2_ros). After a frame's own outputs are published, the camera's pose in
-``fixed_frame`` at the image's stamp joins the frame's poses to the map
-(``core.scene.object_map.ObjectMap``), and the map is published, stamped with the image's
-stamp in ``fixed_frame``:
+from ``/tf`` and ``/tf_static`` (``camera_poses.CameraPoses``). After a frame's own outputs
+are published, the camera's pose in ``fixed_frame`` at the image's stamp joins the frame's
+poses to the map (``core.scene.object_map.ObjectMap``), and the map is published, stamped
+with the image's stamp in ``fixed_frame``:
 
 * ``~/map/<object>/pose`` (geometry_msgs/PoseStamped);
 * ``~/map/detections`` (vision_msgs/Detection3DArray), while subscribed: one Detection3D
@@ -33,25 +31,28 @@ stamp in ``fixed_frame``:
 * ``~/map/markers`` (visualization_msgs/MarkerArray), while subscribed: box and "name
   confidence age" label.
 
-The service ``~/clear_map`` (std_srvs/Trigger) forgets every object (a new scene). A frame
-whose camera pose TF cannot give is answered per frame only, counted
-(``warnings_map_no_transform``) and logged; a transform TF messages carry that the buffer
-refuses (NaN, not a rotation, a second parent) is counted (``warnings_map_bad_transform``)
-and logged, and changes nothing. Map settings changed at run time (``map_*``) start a new
-map.
+The service ``~/clear_map`` (std_srvs/Trigger) forgets every object (a new scene).
+
+TF may come after the image it places (another topic, another sender, a transform
+published a little behind the camera): as tf2_ros's MessageFilter queues a message, an
+answered frame whose camera pose TF does not hold yet waits, in order, until TF places it
+(the map then takes it and is published with its stamp) or ``TF_TIMEOUT_S`` has passed;
+the worker never blocks on TF. A frame whose camera pose TF cannot give is answered per
+frame only, counted (``warnings_map_no_transform``) and logged. Map settings changed at run
+time (``map_*``) start a new map.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 import threading
 import time
 
 from geometry_msgs.msg import PoseStamped
 import numpy as np
-from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -59,29 +60,35 @@ from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from bbpose_ros.core.data.stamps import stamp_to_ns
-from bbpose_ros.core.geometry.rigid import transform_matrix
+from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
 from bbpose_ros.core.scene.object_map import MapObject, ObjectMap
-from bbpose_ros.core.scene.transform_buffer import TransformBuffer, TransformUnavailable
+from bbpose_ros.core.scene.transform_buffer import TransformUnavailable
 from bbpose_ros.core.util.errors import InputError
 from bbpose_ros.ros import conversions, detections
+from bbpose_ros.ros.camera_poses import CameraPoses, still_to_come
 from bbpose_ros.ros.node_pipeline import NodePipeline
 from bbpose_ros.ros.throttle import ProblemLog
 
-try:
-    import tf2_ros
-except ImportError:         # the wheel venv: TransformBuffer stands in
-    tf2_ros = None
-
-# tf2_ros's listener QoS: /tf reliable, keep last 100; /tf_static transient local too, so
-# the static transforms sent before the node started arrive.
-TF_LISTENER_QOS = QoSProfile(depth=100)
-TF_STATIC_QOS = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 MAP_FRAME_PREFIX = 'map/'
-# TF may arrive a little after the image it places (another topic, another sender): a
-# lookup waits this long for it, as tf2_ros's lookup_transform with a timeout does.
-TF_WAIT_S = 0.1
-TF_POLL_S = 0.005
+# An answered frame waits this long for the TF that places it (module docstring), at most
+# MAX_WAITING frames at a time (the oldest gives way); waiting frames are retried every
+# RETRY_S seconds and whenever another frame comes.
+TF_TIMEOUT_S = 1.0
+MAX_WAITING = 64
+RETRY_S = 0.02
+
+
+@dataclass
+class _Waiting:
+    """An answered frame waiting for its camera pose: what the map needs of it."""
+
+    header: Header
+    camera: CameraIntrinsics
+    poses: Sequence[PoseEstimate]
+    pipeline: NodePipeline
+    deadline_s: float                   # time.monotonic() after which it is given up
+    mapped: bool = False
 
 
 class SceneMapping:
@@ -92,17 +99,21 @@ class SceneMapping:
         node: the node; its ``fixed_frame``, ``publish_tf`` and ``tf_prefix`` parameters
             are read (``fixed_frame`` at ``create``).
         problems: counts and logs what TF cannot give or the buffer refuses.
+        count: counts a frame the map took (``count('mapped')``).
 
     """
 
-    def __init__(self, node: LifecycleNode, problems: ProblemLog) -> None:
+    def __init__(self, node: LifecycleNode, problems: ProblemLog,
+                 count: Callable[[str], None]) -> None:
         self._node = node
         self._problems = problems
-        self._lock = threading.Lock()   # the map and the buffer: worker vs executor
+        self._count = count
+        self._lock = threading.Lock()   # the map: worker and retry timer vs clear_map
+        self._order = threading.RLock()     # the waiting frames: worker vs retry timer
+        self._waiting: deque[_Waiting] = deque()
+        self._retry = None              # the timer retrying waiting frames (active)
         self._map: ObjectMap | None = None
-        self._buffer: TransformBuffer | None = None
-        self._tf2 = None                # (tf2_ros.Buffer, its TransformListener)
-        self._subscriptions = []
+        self._tf = CameraPoses(node, problems)
         self._publishers: dict[str, LifecyclePublisher] = {}
         self._poses: dict[str, LifecyclePublisher] = {}
         self.fixed_frame = ''
@@ -135,26 +146,20 @@ class SceneMapping:
         self._poses = {**self._poses, **added}
 
     def subscribe(self) -> None:
-        """Start listening to TF (activate), with tf2_ros where installed."""
+        """Start listening to TF and retrying waiting frames (activate)."""
         if not self.fixed_frame:
             return
-        if tf2_ros is not None:
-            buffer = tf2_ros.Buffer()
-            self._tf2 = (buffer, tf2_ros.TransformListener(buffer, self._node))
-            return
-        self._buffer = TransformBuffer()
-        self._subscriptions = [
-            self._node.create_subscription(TFMessage, '/tf', self._on_tf, TF_LISTENER_QOS),
-            self._node.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
-                                           TF_STATIC_QOS)]
+        self._tf.listen()
+        self._retry = self._node.create_timer(RETRY_S, self._take_waiting)
 
     def unsubscribe(self) -> None:
-        """Stop listening to TF (deactivate); the map is kept."""
-        if self._tf2 is not None:
-            self._tf2[1].unregister()
-        for subscription in self._subscriptions:
-            self._node.destroy_subscription(subscription)
-        self._subscriptions, self._buffer, self._tf2 = [], None, None
+        """Stop listening to TF (deactivate); the map is kept, waiting frames are not."""
+        if self._retry is not None:
+            self._node.destroy_timer(self._retry)
+            self._retry = None
+        with self._order:
+            self._waiting.clear()
+        self._tf.stop()
 
     def destroy(self) -> None:
         """Destroy the publishers and forget the map (cleanup)."""
@@ -163,66 +168,67 @@ class SceneMapping:
             self._node.destroy_lifecycle_publisher(publisher)
         self._publishers, self._poses, self._map = {}, {}, None
 
-    def observe(self, header: Header, camera, poses: Sequence[PoseEstimate],
-                pipeline: NodePipeline) -> bool:
+    def observe(self, header: Header, camera: CameraIntrinsics,
+                poses: Sequence[PoseEstimate], pipeline: NodePipeline) -> bool:
         """
-        Add an answered frame's poses to the map and publish it; tell whether it was added.
+        Offer an answered frame's poses to the map; tell whether the map took it now.
 
-        ``camera``: the image's CameraIntrinsics; ``poses`` in the frame ``header`` names.
+        ``poses`` are in the frame ``header`` names. A frame TF cannot place yet waits
+        (module docstring); frames waiting before it are taken first.
         """
         if not self.fixed_frame or not self._publishers:
             return False
+        waiting = _Waiting(header, camera, poses, pipeline, time.monotonic() + TF_TIMEOUT_S)
+        with self._order:
+            if len(self._waiting) >= MAX_WAITING:
+                self._give_up(self._waiting.popleft(), 'too many frames wait for TF')
+            self._waiting.append(waiting)
+            self._take_waiting()
+        return waiting.mapped
+
+    def _take_waiting(self) -> None:
+        """Map the waiting frames in order while TF places them; give up the expired."""
+        with self._order:
+            while self._waiting:
+                waiting = self._waiting[0]
+                try:
+                    world_from_camera = self._tf.lookup(self.fixed_frame, waiting.header)
+                except (TransformUnavailable, InputError) as err:
+                    if still_to_come(err) and time.monotonic() < waiting.deadline_s:
+                        return
+                    self._give_up(self._waiting.popleft(), str(err))
+                    continue
+                self._waiting.popleft()
+                waiting.mapped = self._add(waiting, world_from_camera)
+
+    def _give_up(self, waiting: _Waiting, reason: str) -> None:
+        """Count and log a frame the map cannot take for want of its camera pose."""
+        frame_id = waiting.header.frame_id
+        self._problems.warn('map_no_transform', frame_id,
+                            f'no camera pose for the map: {self.fixed_frame} <- '
+                            f'{frame_id or "(empty frame_id)"}: {reason}; the frame is '
+                            'answered without it')
+
+    def _add(self, waiting: _Waiting, world_from_camera: np.ndarray) -> bool:
+        """Add one frame's poses to the map and publish the map; tell whether it took them."""
+        header, pipeline = waiting.header, waiting.pipeline
         stamp_ns = stamp_to_ns(header.stamp)
-        try:
-            world_from_camera = self._camera_pose(header.frame_id, header)
-        except (TransformUnavailable, InputError) as err:
-            self._problems.warn('map_no_transform', header.frame_id,
-                                f'no camera pose for the map: {self.fixed_frame} <- '
-                                f'{header.frame_id or "(empty frame_id)"}: {err}; the frame '
-                                'is answered without it')
-            return False
         options, models = pipeline.pipeline.options, pipeline.pipeline.models
         try:
             with self._lock:
                 if self._map is None or self._map.options != options or \
                         self._map.models is not models:     # a rebuild: new settings, objects
                     self._map = ObjectMap(models, options)
-                self._map.add_view(stamp_ns, world_from_camera, camera, poses)
+                self._map.add_view(stamp_ns, world_from_camera, waiting.camera, waiting.poses)
                 objects = self._map.objects()
         except Exception as err:  # noqa: B902 - the frame is answered; the map goes on
             self._problems.warn('map_failed', type(err).__name__,
                                 f'the map could not take the frame: {type(err).__name__}: {err}')
             return False
+        self._count('mapped')
         self._publish(Header(stamp=header.stamp, frame_id=self.fixed_frame), objects,
                       stamp_ns, pipeline)
         return True
-
-    def _camera_pose(self, frame_id, header):
-        """(4, 4) fixed_frame_from_camera at the image's stamp."""
-        if not frame_id:
-            raise InputError('the image has no frame_id')
-        if self._tf2 is not None:
-            try:
-                stamped = self._tf2[0].lookup_transform(self.fixed_frame, frame_id,
-                                                        header.stamp, Duration(seconds=TF_WAIT_S))
-            except tf2_ros.TransformException as err:
-                raise TransformUnavailable(str(err)) from err
-            return transform_matrix(stamped.transform)
-        deadline = time.monotonic() + TF_WAIT_S
-        while True:
-            if self._buffer is None:
-                raise TransformUnavailable('not listening to TF (inactive)')
-            try:
-                with self._lock:
-                    return self._buffer.lookup(self.fixed_frame, frame_id,
-                                               stamp_to_ns(header.stamp))
-            except TransformUnavailable as err:
-                # Only data still to come is waited for: a frame TF has not seen yet, or a
-                # stamp past its newest transform; not two trees or a stamp in the past.
-                late = 'future' in str(err) or 'not in the TF tree' in str(err)
-                if not late or time.monotonic() > deadline:
-                    raise
-            time.sleep(TF_POLL_S)
 
     def _publish(self, header, objects, now_ns, pipeline):
         """Publish the map: poses always, detections, TF and markers while subscribed."""
@@ -246,29 +252,6 @@ class SceneMapping:
             labels = [f'{o.object_name} {o.confidence:.2f} {o.age_s(now_ns):.0f}s'
                       for o in objects]
             publishers['markers'].publish(pipeline.markers(header, poses, pose_msgs, labels))
-
-    def _on_tf(self, message: TFMessage, static: bool = False) -> None:
-        topic = '/tf_static' if static else '/tf'
-        for transform in message.transforms:
-            t, q = transform.transform.translation, transform.transform.rotation
-            try:
-                with self._lock:
-                    if self._buffer is None:
-                        return
-                    went_back = self._buffer.set_transform(
-                        transform.header.frame_id, transform.child_frame_id,
-                        stamp_to_ns(transform.header.stamp), [t.x, t.y, t.z],
-                        [q.x, q.y, q.z, q.w], static)
-            except InputError as err:
-                self._problems.warn('map_bad_transform', transform.child_frame_id,
-                                    f'{topic}: {err}; ignored')
-                continue
-            if went_back:
-                self._node.get_logger().info(f'{topic}: the clock went back (a bag '
-                                             'restarted?): the TF buffer was cleared')
-
-    def _on_tf_static(self, message: TFMessage) -> None:
-        self._on_tf(message, static=True)
 
     def _on_clear(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:

@@ -133,8 +133,7 @@ class FrameWorker:
                                          result.poses, pipeline)
                 start = time.perf_counter()
                 if self._mapping.observe(frame.header, camera.intrinsics, result.poses,
-                                         pipeline):
-                    self._stats.count('mapped')
+                                         pipeline):     # mapped now, not waiting for TF
                     extra_ms['map'] = (time.perf_counter() - start) * 1e3
             except Exception as err:  # noqa: B902 - keep serving whatever one frame does
                 if not self._context.ok():
