@@ -75,8 +75,12 @@ system-deps:
 		|| echo "[setup] warning: could not install libegl1 libgl1; rendering tests will be skipped"; \
 	fi
 
+# Two workers (pytest-xdist), a test file each at a time: its module fixtures (a node, a
+# trained network) are made once; each worker has its own ROS domains (test/conftest.py).
+TEST_WORKERS ?= 2
 test: setup
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/python -m pytest test
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$$(( RANDOM % 100 + 1 ))} $(BIN)/python -m pytest test \
+		-n $(TEST_WORKERS) --dist loadfile
 
 # The main job: LM-O frames -> rosbag -> bbpose_node (through DDS) -> scored poses + plots.
 demo: setup

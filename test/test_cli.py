@@ -22,6 +22,7 @@ import sys
 
 import pytest
 
+from bbpose_ros.cli.main import main
 from bbpose_ros.core.data.bop import BopDataset
 from bbpose_ros.core.eval.instance_scores import POSE_KEYS
 from bbpose_ros.core.eval.paired import instances_path
@@ -34,6 +35,22 @@ def bbpose(*args, cwd=None):
     return subprocess.run([sys.executable, '-m', 'bbpose_ros.cli.main', *map(str, args)],
                           capture_output=True, text=True, cwd=cwd, timeout=300,
                           env={**os.environ, 'PYTHONPATH': str(Path(__file__).parents[1])})
+
+
+def bbpose_here(capsys, *args):
+    """
+    Run ``bbpose`` in this interpreter, as ``python -m bbpose_ros.cli.main`` runs it.
+
+    For refusals of bad input, which happen before any work: no interpreter and torch to
+    start for each. The exit code is main's return value or the SystemExit's code (argparse);
+    a real process's exit code 2 is checked by the other tests of this file.
+    """
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as exit_:
+        code = exit_.code
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(['bbpose', *args], code, out.out, out.err)
 
 
 def test_eval_refines_perturbed_ground_truth_sweep(lmo_root, tmp_path):
@@ -136,7 +153,10 @@ def test_make_bag_writes_a_bag(lmo_root, tmp_path):
     assert (tmp_path / 'bag' / 'metadata.yaml').is_file()
 
 
-def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path):
+def test_bad_input_exits_nonzero_naming_the_problem(lmo_root, tmp_path, capsys):
+    def bbpose(*args):
+        return bbpose_here(capsys, *args)
+
     out = tmp_path / 'report.json'
     missing = bbpose('eval', '--dataset', tmp_path / 'nope', '--boxes', 'gt', '--rotation',
                      'gt', '--json', out)
