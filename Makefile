@@ -60,11 +60,13 @@ build-tools:
 			cmake g++ make python3-dev; \
 	fi
 
-# numba compiles the refiner's kernels into its cache once per source (tens of seconds);
-# doing it here keeps that out of the first node start and the first test that refines.
+# numba compiles the refiner's and the map's kernels into its cache once per source (tens
+# of seconds); doing it here keeps that out of the first node start, the first mapped frame
+# and the first test that refines or maps.
 kernels: $(STAMP)
-	@echo "[setup] the refiner's kernels (numba: compiled once, then loaded from its cache)"
+	@echo "[setup] numba kernels of the refiner and the map (compiled once, then loaded from cache)"
 	@$(BIN)/python -c 'from bbpose_ros.core.refine.refiner import compile_kernels; compile_kernels()'
+	@$(BIN)/python -c 'from bbpose_ros.core.scene.kernels import compile_kernels; compile_kernels()'
 
 # The synthetic-data renderer needs EGL and GL from Debian (Mesa llvmpipe, no GPU needed).
 system-deps:

@@ -62,6 +62,7 @@ from visualization_msgs.msg import MarkerArray
 from bbpose_ros.core.data.stamps import stamp_to_ns
 from bbpose_ros.core.geometry.camera import CameraIntrinsics
 from bbpose_ros.core.pipeline.poses import Detection, PoseEstimate
+from bbpose_ros.core.scene.kernels import compile_kernels
 from bbpose_ros.core.scene.object_map import MapObject, ObjectMap
 from bbpose_ros.core.scene.transform_buffer import TransformUnavailable
 from bbpose_ros.core.util.errors import InputError
@@ -125,6 +126,7 @@ class SceneMapping:
         self.fixed_frame = node.get_parameter('fixed_frame').value
         if not self.fixed_frame:
             return
+        compile_kernels()       # loaded from numba's cache: not in the first frame's worker
         self._publishers = {
             'detections': node.create_lifecycle_publisher(Detection3DArray,
                                                           '~/map/detections', 10),
