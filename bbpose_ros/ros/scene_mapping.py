@@ -73,8 +73,8 @@ from bbpose_ros.ros.throttle import ProblemLog
 
 MAP_FRAME_PREFIX = 'map/'
 # An answered frame waits this long for the TF that places it (module docstring), at most
-# MAX_WAITING frames at a time (the oldest gives way); waiting frames are retried every
-# RETRY_S seconds and whenever another frame comes.
+# MAX_WAITING frames at a time (the oldest gives way); waiting frames are retried whenever
+# another frame comes and, while any waits, every RETRY_S seconds (a timer, else cancelled).
 TF_TIMEOUT_S = 1.0
 MAX_WAITING = 64
 RETRY_S = 0.02
@@ -153,14 +153,15 @@ class SceneMapping:
             return
         self._tf.listen()
         self._retry = self._node.create_timer(RETRY_S, self._take_waiting)
+        self._retry.cancel()            # runs only while frames wait
 
     def unsubscribe(self) -> None:
         """Stop listening to TF (deactivate); the map is kept, waiting frames are not."""
-        if self._retry is not None:
-            self._node.destroy_timer(self._retry)
-            self._retry = None
         with self._order:
             self._waiting.clear()
+            if self._retry is not None:
+                self._node.destroy_timer(self._retry)
+                self._retry = None
         self._tf.stop()
 
     def destroy(self) -> None:
@@ -197,11 +198,15 @@ class SceneMapping:
                     world_from_camera = self._tf.lookup(self.fixed_frame, waiting.header)
                 except (TransformUnavailable, InputError) as err:
                     if still_to_come(err) and time.monotonic() < waiting.deadline_s:
+                        if self._retry is not None and self._retry.is_canceled():
+                            self._retry.reset()
                         return
                     self._give_up(self._waiting.popleft(), str(err))
                     continue
                 self._waiting.popleft()
                 waiting.mapped = self._add(waiting, world_from_camera)
+            if self._retry is not None:
+                self._retry.cancel()
 
     def _give_up(self, waiting: _Waiting, reason: str) -> None:
         """Count and log a frame the map cannot take for want of its camera pose."""
