@@ -109,8 +109,8 @@ class SceneMapping:
         self._node = node
         self._problems = problems
         self._count = count
-        self._lock = threading.Lock()   # the map: worker and retry timer vs clear_map
-        self._order = threading.RLock()     # the waiting frames: worker vs retry timer
+        # The waiting frames and the map: the worker, the retry timer and clear_map.
+        self._lock = threading.RLock()
         self._waiting: deque[_Waiting] = deque()
         self._retry = None              # the timer retrying waiting frames (active)
         self._map: ObjectMap | None = None
@@ -157,7 +157,7 @@ class SceneMapping:
 
     def unsubscribe(self) -> None:
         """Stop listening to TF (deactivate); the map is kept, waiting frames are not."""
-        with self._order:
+        with self._lock:
             self._waiting.clear()
             if self._retry is not None:
                 self._node.destroy_timer(self._retry)
@@ -182,7 +182,7 @@ class SceneMapping:
         if not self.fixed_frame or not self._publishers:
             return False
         waiting = _Waiting(header, camera, poses, pipeline, time.monotonic() + TF_TIMEOUT_S)
-        with self._order:
+        with self._lock:
             if len(self._waiting) >= MAX_WAITING:
                 self._give_up(self._waiting.popleft(), 'too many frames wait for TF')
             self._waiting.append(waiting)
@@ -191,7 +191,7 @@ class SceneMapping:
 
     def _take_waiting(self) -> None:
         """Map the waiting frames in order while TF places them; give up the expired."""
-        with self._order:
+        with self._lock:
             while self._waiting:
                 waiting = self._waiting[0]
                 try:

@@ -30,13 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from bbpose_ros.core.training.settings import HeadTraining, RowTraining
-from bbpose_ros.core.util.declarations import check_settings, nested, setting
-
-
-def _above_zero(shares: float | tuple[float, ...]) -> str | None:
-    """Return why ``shares`` (one or several) are no shares above 0, or None."""
-    low = min(shares) if isinstance(shares, tuple) else shares
-    return None if low > 0.0 else f'{low} is out of range (0, 1]'
+from bbpose_ros.core.util.declarations import above_zero, check_settings, nested, setting
 
 
 @dataclass(frozen=True)
@@ -52,7 +46,7 @@ class SelectionSettings:
         0.3, 'Lowest detector score of a label.', low=0.0, high=1.0)
     keep: float = setting(
         0.5, "Share of each object's poses over the recording a round keeps, by confidence "
-        '(above 0).', low=0.0, high=1.0, check=_above_zero)
+        '(above 0).', low=0.0, high=1.0, check=above_zero)
     min_confidence: float = setting(
         0.6, 'Lowest refinement score of a label whatever keep.', low=0.0, high=1.0)
     min_box_iou: float = setting(
@@ -86,7 +80,7 @@ class AdaptSettings:
     keep_per_round: tuple[float, ...] = setting(
         (0.5, 0.7), "Share of each object's confident poses a round keeps (SelectionSettings' "
         'keep), one per round; the last repeats.', low=0.0, high=1.0, metavar='SHARE,...',
-        check=_above_zero)
+        check=above_zero)
     selection: SelectionSettings = nested(SelectionSettings)
     teacher_threshold: float = setting(
         0.1, "Lowest detector score the teacher refines; poses under the selection's "

@@ -140,7 +140,7 @@ def map_track_report(frames: Sequence[BopFrame], camera_poses: Sequence[np.ndarr
         truth = _truth_in_world(frames, camera_poses, scene)
         names = sorted({name for k in scene for name in run.objects[k]})
         for name in names:
-            jumps = [(k, t) for k, t in _jumps(truth.get(name, {}))]
+            jumps = _jumps(truth.get(name, {}))
             since = jumps[-1][0] if jumps else scene[0]
             track = [run.objects[k][name] for k in scene if k >= since and name in
                      run.objects[k]][-window:]

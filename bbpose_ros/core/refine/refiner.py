@@ -51,18 +51,12 @@ from bbpose_ros.core.refine.foreground_masks import ForegroundMasks
 from bbpose_ros.core.refine.optimizer import newton_update, start_prior
 from bbpose_ros.core.refine.region_modality import RegionModality
 from bbpose_ros.core.refine.viewpoint_model import ViewpointModel
-from bbpose_ros.core.util.declarations import check_settings, setting
+from bbpose_ros.core.util.declarations import above_zero, check_settings, setting
 from bbpose_ros.core.util.errors import InputError
 
 # A pose with fewer valid correspondence lines in an iteration stops: 'too_few_lines'.
 LOCAL_COLORS_MAX_SCALE = 2  # local colour models serve the finer scales (pixels a segment)
 MIN_LINES = 6
-
-
-def _positive(value: float | tuple[float, ...]) -> str | None:
-    """Return why a number (or a tuple's smallest) is refused, not > 0; None: accepted."""
-    smallest = min(value) if isinstance(value, tuple) else value
-    return None if smallest > 0 else f'{smallest} is not > 0'
 
 
 @dataclass(frozen=True)
@@ -92,17 +86,17 @@ class RefinerConfig:
     standard_deviations: tuple[float, ...] = setting(
         (15.0, 5.0, 3.5, 1.5), 'Expected contour error in pixels per iteration (the last '
         'repeats): it weights the lines against the damping (larger: smaller, safer steps).',
-        metavar='PX,...', check=_positive)
+        metavar='PX,...', check=above_zero)
     iterations: int = setting(
         20, 'Correspondence iterations; each re-projects the lines and measures their '
         'distributions.', low=1)
     newton_steps: int = setting(2, 'Pose updates per correspondence iteration.', low=1)
     tikhonov_rotation: float = setting(
         1000.0, 'Damping of the rotation step, per radian squared (> 0: it keeps every '
-        'Newton step solvable, also for a pose without lines).', check=_positive)
+        'Newton step solvable, also for a pose without lines).', check=above_zero)
     tikhonov_translation: float = setting(
         30000.0, 'Damping of the translation step, per metre squared (> 0, as the '
-        "rotation's).", check=_positive)
+        "rotation's).", check=above_zero)
     histogram_rate: float = setting(
         1.0, 'How far the colour histograms move after each correspondence iteration '
         'towards those seen at the current pose (0: keep the initial ones).',

@@ -23,9 +23,8 @@ The region modality (SRT3D): correspondence lines across the projected contour.
   a discrete distribution of where the contour is on that line: its mean and variance; a
   predicted silhouette mask (``foreground_masks``) may stand in for or mix with the colours;
 * the colour model is one pair of histograms per pose, or local (``refine_local_colors``;
-  RBOT's
-  localized "tclc" histograms, Tjaden et al. 2018): each line's colours are those sampled on
-  the lines near it along the contour, with the pose's histograms as a prior of
+  RBOT's localized "tclc" histograms, Tjaden et al. 2018): each line's colours are those
+  sampled on the lines near it along the contour, with the pose's histograms as a prior of
   ``LOCAL_PRIOR_PIXELS`` pixels. One pair of histograms gathers its background from all
   around the object, dark shadows and clutter included; where the object is darker than the
   background beside it, its own colours then look ambiguous while the bright background is

@@ -60,6 +60,16 @@ def setting(default: Any, description: str, *, low: float | None = None,
         'metavar': metavar, 'check': check})
 
 
+def above_zero(value: float | tuple[float, ...]) -> str | None:
+    """
+    Return why a number (or a tuple's smallest) is refused: not > 0; None: accepted.
+
+    A ``check`` for settings whose range is open at 0 (``low`` is inclusive).
+    """
+    smallest = min(value) if isinstance(value, tuple) else value
+    return None if smallest > 0 else f'{smallest} is not > 0'
+
+
 def redeclared(settings_class: type, name: str, default: Any) -> Any:
     """Make a subclass's field of ``settings_class``'s setting ``name``, another default."""
     return field(default=default, metadata=settings_class.__dataclass_fields__[name].metadata)
