@@ -19,7 +19,7 @@ The bag is read with ``rosbags`` and each message is published as its raw CDR by
 messages keep their recorded header stamps bit for bit.
 """
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 import importlib
 from pathlib import Path
 
@@ -75,6 +75,19 @@ class BagPlayer:
     def publish(self, topic: str, raw: bytes) -> None:
         """Publish raw CDR bytes on a topic of the bag."""
         self.publishers[topic].publish(raw)
+
+    def unsubscribed(self, topics: Iterable[str]) -> list[str]:
+        """
+        Return those of ``topics`` that no subscriber has matched yet.
+
+        Raises InputError naming a topic the bag does not have.
+        """
+        missing = [topic for topic in topics if topic not in self.publishers]
+        if missing:
+            raise InputError(f'bag {self.path} has no topic {", ".join(missing)} '
+                             f'(it has {", ".join(sorted(self.publishers))})')
+        return [topic for topic in topics
+                if self.publishers[topic].get_subscription_count() == 0]
 
     def wait_for_all_acked(self, timeout_s: float) -> bool:
         """Wait until subscribers acknowledged every message; returns False on timeout."""

@@ -26,6 +26,7 @@ from bbpose_ros.bags.player import BagPlayer
 from bbpose_ros.core.util.errors import InputError
 
 ACK_TIMEOUT_S = 5.0   # reliable messages still in flight when the bag ends
+SUBSCRIBER_POLL_S = 0.05   # how often --wait-for looks at the graph
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -41,7 +42,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--delay', type=float, default=1.0,
                         help='seconds to let subscribers discover the publishers before the '
                              'first message (default %(default)s)')
+    parser.add_argument('--wait-for', metavar='TOPIC', action='append', default=[],
+                        help='before the delay, wait until this topic of the bag has a '
+                             'subscriber (repeatable; as `ros2 topic pub -w`, no time limit)')
     parser.set_defaults(func=run)
+
+
+def wait_for_subscribers(player: BagPlayer, topics: list[str]) -> None:
+    """Block until each of the bag's ``topics`` has a subscriber, saying which it waits for."""
+    waiting = player.unsubscribed(topics)
+    if waiting:
+        print(f'waiting for subscribers on {", ".join(waiting)}', flush=True)
+    while waiting:
+        time.sleep(SUBSCRIBER_POLL_S)
+        waiting = player.unsubscribed(waiting)
 
 
 def play(player: BagPlayer, rate: float, delay_s: float = 0.0) -> int:
@@ -69,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         player = BagPlayer(node, args.bag)
         print(f'playing {player.message_count} messages on {len(player.publishers)} topics '
               f'from {args.bag} at rate {args.rate}')
+        wait_for_subscribers(player, args.wait_for)
         count = play(player, args.rate, args.delay)
         delivered = player.wait_for_all_acked(ACK_TIMEOUT_S)
         print(f'published {count} messages' + ('' if delivered else
