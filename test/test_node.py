@@ -87,7 +87,7 @@ def graph(lmo_root, weights, tmp_path_factory):
     client.subscribe(Image, DEBUG)
     client.subscribe(DiagnosticArray, '/diagnostics')
     assert client.connected((client.image, client.info), DEBUG), log.path
-    client.spin_until(lambda: False, timeout_s=0.5)  # let the other endpoints match too
+    assert client.spin_until(client.matched), log.path   # every output's first message
     yield client, node, log
     client.close()
     node.stop()

@@ -89,7 +89,7 @@ def graph(lmo_root, tmp_path_factory):
     for name in LMO_OBJECTS:
         client.subscribe(PoseStamped, f'{OUT}/{name}/pose')
     assert client.connected((client.image, client.info, client.tf), MAP), log.path
-    client.spin_until(lambda: False, timeout_s=0.5)
+    assert client.spin_until(client.matched), log.path   # every output's first message
     yield client, weights, log
     client.close()
     node.stop()

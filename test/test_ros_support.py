@@ -123,6 +123,10 @@ class GraphClient:
         """Record the messages of a topic into ``received[topic]``."""
         self.node.create_subscription(cls, topic, self.received[topic].append, 100)
 
+    def matched(self):
+        """Return True when every subscription of this client has matched a publisher."""
+        return all(s.get_publisher_count() > 0 for s in self.node.subscriptions)
+
     def spin_until(self, done, timeout_s=TIMEOUT_S):
         """Spin until ``done()``; returns whether it became true within the timeout."""
         deadline = time.monotonic() + timeout_s
