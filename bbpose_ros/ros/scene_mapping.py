@@ -110,7 +110,7 @@ class SceneMapping:
         self._problems = problems
         self._count = count
         # The waiting frames and the map: the worker, the retry timer and clear_map.
-        self._lock = threading.RLock()
+        self._lock = threading.Lock()
         self._waiting: deque[_Waiting] = deque()
         self._retry = None              # the timer retrying waiting frames (active)
         self._map: ObjectMap | None = None
@@ -186,7 +186,7 @@ class SceneMapping:
             if len(self._waiting) >= MAX_WAITING:
                 self._give_up(self._waiting.popleft(), 'too many frames wait for TF')
             self._waiting.append(waiting)
-            self._take_waiting()
+        self._take_waiting()
         return waiting.mapped
 
     def _take_waiting(self) -> None:
@@ -217,17 +217,20 @@ class SceneMapping:
                             'answered without it')
 
     def _add(self, waiting: _Waiting, world_from_camera: np.ndarray) -> bool:
-        """Add one frame's poses to the map and publish the map; tell whether it took them."""
+        """
+        Add one frame's poses to the map and publish the map; tell whether it took them.
+
+        Called with ``_lock`` held (``_take_waiting``).
+        """
         header, pipeline = waiting.header, waiting.pipeline
         stamp_ns = stamp_to_ns(header.stamp)
         options, models = pipeline.pipeline.options, pipeline.pipeline.models
         try:
-            with self._lock:
-                if self._map is None or self._map.options != options or \
-                        self._map.models is not models:     # a rebuild: new settings, objects
-                    self._map = ObjectMap(models, options)
-                self._map.add_view(stamp_ns, world_from_camera, waiting.camera, waiting.poses)
-                objects = self._map.objects()
+            if self._map is None or self._map.options != options or \
+                    self._map.models is not models:     # a rebuild: new settings, objects
+                self._map = ObjectMap(models, options)
+            self._map.add_view(stamp_ns, world_from_camera, waiting.camera, waiting.poses)
+            objects = self._map.objects()
         except Exception as err:  # noqa: B902 - the frame is answered; the map goes on
             self._problems.warn('map_failed', type(err).__name__,
                                 f'the map could not take the frame: {type(err).__name__}: {err}')
